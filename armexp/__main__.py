@@ -1,0 +1,5 @@
+import sys
+
+from armexp.cli import main
+
+sys.exit(main())

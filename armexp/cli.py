@@ -1,0 +1,171 @@
+"""The ``armexp`` command: dispatches ``armexp <stage> [overrides] [hydra flags]`` to Hydra apps.
+
+Every stage is a Hydra application over the same config tree (``conf/``), so Hydra's grammar
+works unchanged: ``armexp simulate controller=pid``, ``armexp tune -m tuner.seed=0,1,2``,
+``armexp simulate --cfg job``. Before Hydra runs, the overrides (every combination of a sweep)
+are composed and validated, so a bad value stops with one sentence and exit code 2 instead of a
+traceback.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+# stage -> (module with `run(cfg)`, one-line help); module None = not built yet.
+STAGES: dict[str, tuple[str | None, str]] = {
+    "simulate": ("armexp.stages.simulate", "one closed-loop run of a controller, no agent"),
+    "tune": ("armexp.stages.tune", "cuckoo search (Algorithm 2) of the controller gains"),
+    "train": (None, "SAC training of the motion planner with the controller in the loop"),
+    "eval": (None, "tasks (a)-(d) and held-out targets, proposed controller and PID"),
+    "report": (None, "Tables I-III and Figures 3-6 from stored runs"),
+    "pipeline": (None, "tune -> train -> eval -> report under one parent run"),
+    "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
+}
+
+_VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
+                "--config-dir", "-cd", "--experimental-rerun", "--info", "-i"}
+_NO_VALIDATE = {"--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc",
+                "--version"}
+
+
+def usage() -> str:
+    lines = [
+        "usage: armexp <stage> [key=value ...] [-m] [--cfg job] [--help]",
+        "",
+        "Stages (each a Hydra app; `armexp <stage> --help` shows its config groups):",
+    ]
+    for name, (module, text) in STAGES.items():
+        suffix = "" if module else "   [not built yet]"
+        lines.append(f"  {name:<9} {text}{suffix}")
+    lines += [
+        "",
+        "Examples:",
+        "  armexp simulate controller=pid scenario=hold",
+        "  armexp tune tuner=cso_fast",
+        "  armexp tune -m controller=subsystem_adaptive,pid",
+        "Outputs: MLflow store runs/mlflow.db (view with `armexp ui`).",
+    ]
+    return "\n".join(lines)
+
+
+def split_args(args: Sequence[str]) -> tuple[list[str], bool, bool]:
+    """(overrides, multirun, validate) from Hydra's command line."""
+    overrides: list[str] = []
+    multirun = False
+    validate = True
+    skip = False
+    for a in args:
+        if skip:
+            skip = False
+            continue
+        if a in ("-m", "--multirun"):
+            multirun = True
+        elif a in _NO_VALIDATE:
+            validate = False
+        elif a.startswith("-"):
+            skip = a in _VALUE_FLAGS
+        else:
+            overrides.append(a)
+    return overrides, multirun, validate
+
+
+def sweep_combinations(overrides: Sequence[str], limit: int = 64) -> list[list[str]]:
+    """Every job's overrides of a basic sweep (at most ``limit``, enough to catch bad values)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    batches = BasicSweeper.split_arguments(parsed, max_batch_size=None)
+    return [list(job) for batch in batches for job in batch][:limit]
+
+
+def precheck(overrides: Sequence[str], multirun: bool) -> None:
+    from armexp.config import compose_config
+
+    if not multirun:
+        compose_config(overrides)
+        return
+    sweepable = [o for o in overrides if not o.startswith("hydra")]
+    try:
+        jobs = sweep_combinations(sweepable)
+    except Exception:
+        # Non-basic sweeps (ranges for other sweepers, …): validate the fixed part only.
+        jobs = [[o for o in sweepable if "," not in o and "(" not in o]]
+    for job in jobs:
+        compose_config(job)
+
+
+def run_stage(stage: str, args: Sequence[str]) -> int:
+    module_name, _ = STAGES[stage]
+    if module_name is None:
+        print(
+            f"armexp: the '{stage}' stage is not built yet; available now: "
+            + ", ".join(s for s, (m, _) in STAGES.items() if m),
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    from armexp.config import ConfigError, config_dir, normalize_overrides, register_schemas
+
+    overrides, multirun, validate = split_args(args)
+    if validate:
+        try:
+            precheck(overrides, multirun)
+        except ConfigError as exc:
+            print(f"armexp {stage}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+    module = importlib.import_module(module_name)
+    task: Callable[[Any], Any] = module.run
+
+    import hydra
+
+    def job(cfg: Any) -> Any:
+        from armexp.config import validate as check
+
+        try:
+            check(cfg)
+        except ConfigError as exc:
+            print(f"armexp {stage}: {exc}", file=sys.stderr)
+            raise SystemExit(EXIT_USAGE) from None
+        try:
+            return task(cfg)
+        except ConfigError as exc:  # e.g. a missing upstream run found only at run time
+            print(f"armexp {stage}: {exc}", file=sys.stderr)
+            raise SystemExit(EXIT_USAGE) from None
+
+    register_schemas()
+    argv = [a if a.startswith("-") else normalize_overrides([a])[0] for a in args]
+    sys.argv = [f"armexp {stage}", f"hydra.job.name={stage}", *argv]
+    app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
+    try:
+        app()
+    except KeyboardInterrupt:
+        print(f"armexp {stage}: interrupted; the MLflow run is marked KILLED.", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    os.environ.setdefault("HYDRA_FULL_ERROR", "0")
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(usage())
+        return 0
+    stage, rest = args[0], args[1:]
+    if stage not in STAGES:
+        print(
+            f"armexp: stage={stage} is not a known stage; choose one of: {', '.join(STAGES)}.",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    return run_stage(stage, rest)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,252 @@
+"""Config tree location, schema registration, composition and validation.
+
+`validate` is the single gate every stage passes: it turns any mistake (unknown option, wrong type,
+bad value, inconsistent lengths) into a `ConfigError` whose message is one sentence naming the key,
+the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from hydra import compose, initialize_config_dir
+from hydra.core.config_store import ConfigStore
+from hydra.core.global_hydra import GlobalHydra
+from hydra.errors import HydraException, MissingConfigException
+from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from armexp.config.checks import Check, ConfigError, fail
+from armexp.config.schema import SCHEMAS, ArmexpConfig
+
+__all__ = ["ConfigError", "compose_config", "config_dir", "register_schemas", "validate"]
+
+
+def config_dir() -> Path:
+    """The `conf/` tree: the checkout's when running from source, else the installed copy."""
+    source = Path(__file__).resolve().parents[2] / "conf"
+    if (source / "config.yaml").is_file():
+        return source
+    return Path(str(resources.files("armexp.conf")))
+
+
+def register_schemas() -> None:
+    cs = ConfigStore.instance()
+    cs.store(name="armexp_schema", node=ArmexpConfig)
+    for path, node in SCHEMAS.items():
+        group, name = path.split("/")
+        cs.store(group=group, name=name, node=node)
+
+
+@contextmanager
+def _hydra_context() -> Iterator[None]:
+    register_schemas()
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+            yield
+    finally:
+        GlobalHydra.instance().clear()
+
+
+def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
+    """Compose the root config with Hydra's compose API, translating errors to `ConfigError`."""
+    overrides = normalize_overrides(overrides)
+    try:
+        with _hydra_context():
+            cfg = compose(config_name="config", overrides=list(overrides))
+    except (HydraException, OmegaConfBaseException, ValueError) as exc:
+        raise translate_error(exc, overrides) from None
+    validate(cfg)
+    return cfg
+
+
+def normalize_overrides(overrides: Sequence[str]) -> list[str]:
+    """Accept ``a.b=option`` for the nested group ``a/b`` (``controller.gains=paper``)."""
+    out = []
+    for o in overrides:
+        key, eq, value = o.partition("=")
+        group = key.replace(".", "/")
+        if eq and "." in key and not key.startswith(("+", "~", "hydra")):
+            if value in group_options(group):
+                o = f"{group}={value}"
+        out.append(o)
+    return out
+
+
+def group_options(group: str) -> list[str]:
+    folder = config_dir() / group
+    return sorted(p.stem for p in folder.glob("*.yaml"))
+
+
+_MISSING_OPTION = re.compile(r"Could not (?:find|load) '([\w/]+)/([^'/]+)'")
+_FULL_KEY = re.compile(r"full_key:\s*(\S+)")
+_NOT_IN_STRUCT = re.compile(r"Key '([^']+)' (?:is )?not in (?:struct|'[^']+')")
+_COULD_NOT_OVERRIDE = re.compile(r"Could not override '([^']+)'")
+_VALUE = re.compile(r"Value '([^']*)'")
+_TYPE = re.compile(r"could not be converted to (\w+)")
+
+
+def translate_error(exc: BaseException, overrides: Sequence[str] = ()) -> ConfigError:
+    """One sentence for a Hydra/OmegaConf composition error."""
+    msg = str(exc)
+    if exc.__cause__ is not None:
+        msg += "\n" + str(exc.__cause__)
+    m = _MISSING_OPTION.search(msg)
+    if isinstance(exc, MissingConfigException) or m:
+        if m:
+            group, option = m.group(1), m.group(2)
+            options = group_options(group)
+            if options:
+                return ConfigError(
+                    f"{group.replace('/', '.')}={option} is not a known option; choose one of: "
+                    f"{', '.join(options)}."
+                )
+    key_m = _FULL_KEY.search(msg) or _COULD_NOT_OVERRIDE.search(msg)
+    key = key_m.group(1) if key_m else None
+    value = _override_value(key, overrides) if key else None
+    if "is not a subclass of" in msg and key:
+        return ConfigError(
+            f"{key}={value} does not fit here: it must be a group of settings "
+            f"(see `armexp <stage> --cfg job`)."
+        )
+    if _TYPE.search(msg) and key:
+        shown = value if value is not None else (_VALUE.search(msg) or [None, "?"])[1]
+        kind = {"float": "a number", "integer": "an integer", "bool": "true or false"}.get(
+            _TYPE.search(msg).group(1).lower(), "of another type"  # type: ignore[union-attr]
+        )
+        return ConfigError(f"{key}={shown} is not allowed: it must be {kind}.")
+    nis = _NOT_IN_STRUCT.search(msg)
+    if nis and key:
+        return ConfigError(
+            f"{key} is not a config key armexp knows here (from '{_find_override(key, overrides)}')"
+            "; see `armexp <stage> --cfg job` for the valid keys."
+        )
+    if "Ambiguous value" in msg or "multirun" in msg.lower():
+        return ConfigError(
+            "a sweep (a=1,2 or range(...)) was given without -m; add -m (--multirun) to sweep."
+        )
+    first = msg.strip().splitlines()[0] if msg.strip() else type(exc).__name__
+    return ConfigError(f"the configuration could not be composed: {first.rstrip('.')}.")
+
+
+def _override_value(key: str, overrides: Sequence[str]) -> str | None:
+    for o in overrides:
+        k, _, v = o.lstrip("+~").partition("=")
+        if k == key:
+            return v
+    return None
+
+
+def _find_override(key: str, overrides: Sequence[str]) -> str:
+    for o in overrides:
+        if o.lstrip("+~").partition("=")[0] == key:
+            return o
+    return key
+
+
+# ---------------------------------------------------------------------------------- validation
+def validate(cfg: DictConfig) -> None:
+    """Check field values against their schema checks, then the cross-field rules."""
+    _walk(cfg, "")
+    _cross_checks(cfg)
+
+
+def _walk(node: Any, path: str) -> None:
+    if isinstance(node, DictConfig):
+        kind = OmegaConf.get_type(node)
+        checks: dict[str, Check] = {}
+        if kind is not None and dataclasses.is_dataclass(kind):
+            for f in dataclasses.fields(kind):
+                if "check" in f.metadata:
+                    checks[f.name] = f.metadata["check"]
+        for key in node:
+            if OmegaConf.is_missing(node, key):
+                continue
+            child = node[key]
+            sub = f"{path}.{key}" if path else str(key)
+            if key in checks:
+                plain = OmegaConf.to_container(child) if _is_container(child) else child
+                if not checks[key](plain):
+                    raise fail(sub, plain, checks[key].allowed)
+            _walk(child, sub)
+    elif isinstance(node, ListConfig):
+        for i, child in enumerate(node):
+            _walk(child, f"{path}[{i}]")
+
+
+def _is_container(x: Any) -> bool:
+    return isinstance(x, DictConfig | ListConfig)
+
+
+def _cross_checks(cfg: DictConfig) -> None:
+    robot = cfg.get("robot")
+    if robot is None or OmegaConf.is_missing(cfg, "robot"):
+        return
+    n = len(robot.lengths)
+    if n == 0:
+        raise fail("robot.lengths", [], "give one length per link")
+    per_joint = ["masses", "q0", "joint_lower", "joint_upper", "velocity_bound"]
+    for key in per_joint:
+        _need_len(f"robot.{key}", robot[key], n)
+    for j in range(n):
+        lo, hi = robot.joint_lower[j], robot.joint_upper[j]
+        if not lo < hi:
+            raise fail(
+                f"robot.joint_lower[{j}]", lo, f"it must be below robot.joint_upper[{j}]={hi}"
+            )
+        if not lo <= robot.q0[j] <= hi:
+            raise fail(f"robot.q0[{j}]", robot.q0[j], f"it must lie within [{lo}, {hi}]")
+    unc = robot.uncertainty
+    for key in ("tau_d_cos_amp", "tau_d_cos_freq", "tau_d_rand_amp"):
+        if unc[key] is not None:
+            _need_len(f"robot.uncertainty.{key}", unc[key], n)
+    for i, term in enumerate(unc.f_terms):
+        for key in ("joint", "of"):
+            if not 1 <= term[key] <= n:
+                raise fail(
+                    f"robot.uncertainty.f_terms[{i}].{key}", term[key], f"joints are 1..{n}"
+                )
+    ctrl = cfg.get("controller")
+    if ctrl is None or OmegaConf.is_missing(cfg, "controller"):
+        return
+    if ctrl.torque_limit is not None:
+        _need_len("controller.torque_limit", ctrl.torque_limit, n)
+        for j, v in enumerate(ctrl.torque_limit):
+            if not v > 0:
+                raise fail(f"controller.torque_limit[{j}]", v, "it must be > 0 (null for none)")
+    if ctrl.name == "pid":
+        for key in ("kp", "ki", "kd"):
+            _need_len(f"controller.gains.{key}", ctrl.gains[key], n)
+    for name, box in ctrl.bounds.items():
+        if len(box) != 2:
+            raise fail(f"controller.bounds.{name}", list(box), "give [lower, upper]")
+        if not box[0] < box[1]:
+            raise ConfigError(
+                f"controller.bounds.{name}={list(box)} is not allowed: the lower bound "
+                f"{box[0]} must be below the upper bound {box[1]}."
+            )
+    scenario = cfg.get("scenario")
+    if scenario is not None and not OmegaConf.is_missing(cfg, "scenario"):
+        if len(scenario.offset) not in (1, n):
+            raise fail("scenario.offset", list(scenario.offset), f"give 1 or {n} values")
+    tuner = cfg.get("tuner")
+    if tuner is not None and not OmegaConf.is_missing(cfg, "tuner"):
+        obj = tuner.objective
+        if not obj.rise_low < obj.rise_high:
+            raise fail(
+                "tuner.objective.rise_low",
+                obj.rise_low,
+                f"it must be below tuner.objective.rise_high={obj.rise_high}",
+            )
+
+
+def _need_len(key: str, value: Any, n: int) -> None:
+    if len(value) != n:
+        raise fail(key, list(value), f"the robot has {n} joints, so give {n} values")

@@ -1,0 +1,273 @@
+"""Structured configs: the typed schema behind every group of ``conf/``.
+
+Each group's YAML files start from one of these dataclasses (registered in Hydra's ConfigStore as
+``<group>/<name>_schema``), so OmegaConf rejects unknown keys and wrong types, and
+`armexp.config.validate` checks the values (``metadata['check']``) and the cross-field rules.
+Joint numbers in configs are 1-based, as in the paper (q1, q2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from omegaconf import MISSING
+
+from armexp.config.checks import (
+    at_least,
+    between,
+    checked,
+    each,
+    nonnegative,
+    one_of,
+    positive,
+)
+
+_pos = positive()
+
+
+# --------------------------------------------------------------------------------------- robot
+@dataclass
+class FTermConfig:
+    """One cosine term of F(q, q̇): ``amp · cos(freq · x)`` added to joint ``joint``."""
+
+    joint: int = checked(1, at_least(1))
+    amp: float = 0.0
+    freq: float = 0.0
+    source: str = checked("q", one_of("q", "dq"))
+    of: int = checked(1, at_least(1))
+
+
+@dataclass
+class UncertaintyConfig:
+    """The unknown terms of eq. 2 (eq. 40 for the paper arm); all off by default."""
+
+    enabled: bool = True
+    f_terms: list[FTermConfig] = field(default_factory=list)
+    tau_d_cos_amp: list[float] | None = None
+    tau_d_cos_freq: list[float] | None = None
+    tau_d_rand_amp: list[float] | None = None
+
+
+@dataclass
+class RobotConfig:
+    name: str = MISSING
+    lengths: list[float] = checked(factory=list, check=each(_pos))
+    masses: list[float] = checked(factory=list, check=each(_pos))
+    gravity: float = checked(9.81, nonnegative())
+    q0: list[float] = field(default_factory=list)
+    joint_lower: list[float] = field(default_factory=list)
+    joint_upper: list[float] = field(default_factory=list)
+    velocity_bound: list[float] = checked(factory=list, check=each(_pos))
+    uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
+
+
+# ---------------------------------------------------------------------------------- controller
+@dataclass
+class AdaptiveGains:
+    """B = [a0, a1, b1, c1, r1] of Algorithm 3 (eqs. 5, 11, 12); all > 0."""
+
+    a0: float = checked(MISSING, _pos)
+    a1: float = checked(MISSING, _pos)
+    b1: float = checked(MISSING, _pos)
+    c1: float = checked(MISSING, _pos)
+    r1: float = checked(MISSING, _pos)
+
+
+@dataclass
+class PIDGains:
+    """Per-joint gains of τ = −(kp e1 + ki ∫e1 + kd e2)."""
+
+    kp: list[float] = checked(factory=list, check=each(nonnegative()))
+    ki: list[float] = checked(factory=list, check=each(nonnegative()))
+    kd: list[float] = checked(factory=list, check=each(nonnegative()))
+
+
+@dataclass
+class ControllerConfig:
+    name: str = MISSING
+    dt: float = checked(0.001, _pos)
+    torque_limit: list[float] | None = None
+    #: CSO search box per gain: ``{gain: [lower, upper]}`` (PID gains per joint: kp_1, …).
+    bounds: dict[str, list[float]] = field(default_factory=dict)
+
+
+@dataclass
+class AdaptiveControllerConfig(ControllerConfig):
+    name: str = checked("subsystem_adaptive", one_of("subsystem_adaptive"))
+    gains: AdaptiveGains = field(default_factory=AdaptiveGains)
+
+
+@dataclass
+class PIDControllerConfig(ControllerConfig):
+    name: str = checked("pid", one_of("pid"))
+    gains: PIDGains = field(default_factory=PIDGains)
+
+
+# ---------------------------------------------------------------------------------- scenario
+@dataclass
+class ScenarioConfig:
+    """A reference for `armexp simulate`: q̇_d commands from the initial state, plus an offset.
+
+    kind=switching: q̇_d uniform within ``scale`` × the robot's velocity bounds, redrawn every
+    ``switch_period`` s (what the agent produces); kind=hold: q̇_d = 0 (pure regulation of the
+    offset); kind=sine: q̇_d = scale × bound × sin(2π t / period).
+    """
+
+    kind: str = checked("switching", one_of("switching", "hold", "sine"))
+    duration: float = checked(2.0, _pos)
+    switch_period: float = checked(0.03, _pos)
+    scale: float = checked(1.0, between(0.0, 1.0))
+    period: float = checked(2.0, _pos)
+    offset: list[float] = field(default_factory=lambda: [0.05])
+    seed: int = checked(0, at_least(0))
+
+
+# ------------------------------------------------------------------------------------ tuner
+@dataclass
+class ObjectiveConfig:
+    """The CSO objective (DESIGN §5): Gaing's W over seeded reference scenarios."""
+
+    n_scenarios: int = checked(8, at_least(1))
+    horizon: float = checked(0.6, _pos)
+    switch_period: float = checked(0.03, _pos)
+    offset: float = checked(0.05, _pos)
+    seed: int = checked(2024, at_least(0))
+    gaing_beta: float = checked(1.0, _pos)
+    settle_band: float = checked(0.02, between(0.0, 1.0, lo_open=True))
+    rise_high: float = checked(0.9, between(0.0, 1.0, lo_open=True))
+    rise_low: float = checked(0.1, between(0.0, 1.0, lo_open=True))
+    steady_window: float = checked(0.2, between(0.0, 1.0, lo_open=True))
+
+
+@dataclass
+class TunerConfig:
+    name: str = MISSING
+    n_nests: int = checked(15, at_least(2))
+    n_iterations: int = checked(200, at_least(0))
+    pa: float = checked(0.25, between(0.0, 1.0))
+    beta: float = checked(1.5, between(0.0, 2.0, lo_open=True))
+    step_scale: float = checked(0.01, _pos)
+    seed: int = checked(0, at_least(0))
+    objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
+
+
+# ------------------------------------------------------------------------------------- agent
+@dataclass
+class AgentConfig:
+    """SB3 SAC hyper-parameters (Table II for ``sac_paper``)."""
+
+    name: str = MISSING
+    algo: str = checked("sac", one_of("sac"))
+    batch_size: int = checked(512, at_least(1))
+    tau: float = checked(0.001, between(0.0, 1.0, lo_open=True))
+    buffer_size: int = checked(1_000_000, at_least(1))
+    learning_starts: int = checked(1000, at_least(0))
+    gamma: float = checked(0.995, between(0.0, 1.0))
+    learning_rate: float = checked(0.001, _pos)
+    episodes: int = checked(20000, at_least(1))
+    train_freq: int = checked(1, at_least(1))
+    gradient_steps: int = checked(1, at_least(1))
+    net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
+    device: str = "cpu"
+
+
+# --------------------------------------------------------------------------------------- env
+@dataclass
+class EnvConfig:
+    """The reaching environment (Table I)."""
+
+    id: str = "armexp/Reach-v0"
+    action_period: float = checked(0.03, _pos)
+    max_steps: int = checked(1000, at_least(1))
+    reach_threshold: float = checked(0.04, _pos)
+    reach_reward: float = 200.0
+    boundary_penalty: float = 50.0
+    collision_penalty: float = 100.0
+    growth_penalty: float = 1.0
+    target_margin: float = checked(0.05, nonnegative())
+    workspace_grid: int = checked(200, at_least(10))
+
+
+@dataclass
+class Obstacle:
+    x: float = 0.0
+    y: float = 0.0
+    r: float = checked(0.1, _pos)
+
+
+@dataclass
+class ObstaclesConfig:
+    name: str = MISSING
+    circles: list[Obstacle] = field(default_factory=list)
+
+
+@dataclass
+class TaskTarget:
+    name: str = MISSING
+    x: float = 0.0
+    y: float = 0.0
+
+
+@dataclass
+class TasksConfig:
+    name: str = MISSING
+    targets: list[TaskTarget] = field(default_factory=list)
+    n_random: int = checked(20, at_least(0))
+    random_seed: int = checked(7, at_least(0))
+
+
+# ---------------------------------------------------------------------------------- tracking
+@dataclass
+class TrackingConfig:
+    """Where runs go. ``uri`` None means ``sqlite:///<runs_dir>/mlflow.db``."""
+
+    uri: str | None = None
+    experiment: str = "armexp"
+    runs_dir: str = "runs"
+    artifact_root: str | None = None
+
+
+# ---------------------------------------------------------------------------------- stages
+@dataclass
+class SimulateStageConfig:
+    run_name: str | None = None
+
+
+@dataclass
+class TuneStageConfig:
+    run_name: str | None = None
+    progress: bool = True
+    log_history_every: int = checked(1, at_least(1))
+
+
+@dataclass
+class ArmexpConfig:
+    """The root config every stage composes (``conf/config.yaml``)."""
+
+    seed: int = checked(0, at_least(0))
+    robot: RobotConfig = MISSING
+    obstacles: ObstaclesConfig = MISSING
+    controller: Any = MISSING
+    tuner: TunerConfig = MISSING
+    agent: AgentConfig = MISSING
+    env: EnvConfig = MISSING
+    tasks: TasksConfig = MISSING
+    scenario: ScenarioConfig = MISSING
+    tracking: TrackingConfig = MISSING
+    simulate: SimulateStageConfig = field(default_factory=SimulateStageConfig)
+    tune: TuneStageConfig = field(default_factory=TuneStageConfig)
+
+
+SCHEMAS: dict[str, type] = {
+    "robot/robot_schema": RobotConfig,
+    "controller/subsystem_adaptive_schema": AdaptiveControllerConfig,
+    "controller/pid_schema": PIDControllerConfig,
+    "scenario/scenario_schema": ScenarioConfig,
+    "tuner/tuner_schema": TunerConfig,
+    "agent/agent_schema": AgentConfig,
+    "env/env_schema": EnvConfig,
+    "obstacles/obstacles_schema": ObstaclesConfig,
+    "tasks/tasks_schema": TasksConfig,
+    "tracking/tracking_schema": TrackingConfig,
+}

@@ -1,0 +1,1 @@
+"""Pipeline stages: thin functions ``run(cfg)``, config in → MLflow run out."""

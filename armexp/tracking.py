@@ -1,0 +1,273 @@
+"""The MLflow backbone: store location, one run per stage, artifacts, and run look-up.
+
+Stages hand data to each other only through MLflow (DESIGN §1). Every stage run carries:
+
+* params: the flattened resolved config (``robot.lengths`` → ``[1.0, 0.8]``),
+* artifact ``config.yaml``: the full resolved config,
+* tags: ``armexp.stage``, ``armexp.git_commit`` (when run inside a git checkout), and
+* a truthful end status: FINISHED, FAILED (with ``armexp.error``) or KILLED (interrupted).
+
+The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
+``<runs_dir>/artifacts``, both relative to the directory armexp is started in.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, TypeVar
+
+import mlflow
+from mlflow.entities import Run
+from mlflow.exceptions import MlflowException
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf
+
+from armexp.config import ConfigError
+
+STAGE_TAG = "armexp.stage"
+COMMIT_TAG = "armexp.git_commit"
+ERROR_TAG = "armexp.error"
+MAX_PARAM_LENGTH = 6000
+
+T = TypeVar("T")
+log = logging.getLogger(__name__)
+for _noisy in ("alembic", "mlflow.store.db.utils"):
+    logging.getLogger(_noisy).setLevel(logging.WARNING)
+
+
+def store_uri(cfg: DictConfig) -> str:
+    """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``."""
+    if cfg.tracking.uri:
+        return str(cfg.tracking.uri)
+    runs = Path(cfg.tracking.runs_dir).resolve()
+    runs.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{runs / 'mlflow.db'}"
+
+
+def artifact_root(cfg: DictConfig) -> str | None:
+    """Where a new experiment stores artifacts (None: the server decides)."""
+    if cfg.tracking.artifact_root:
+        return str(cfg.tracking.artifact_root)
+    if cfg.tracking.uri and not str(cfg.tracking.uri).startswith("sqlite"):
+        return None
+    return (Path(cfg.tracking.runs_dir).resolve() / "artifacts").as_uri()
+
+
+def retry(fn: Callable[[], T], attempts: int = 8, delay: float = 0.25) -> T:
+    """Call ``fn`` again when SQLite reports a lock (several jobs writing one store)."""
+    for i in range(attempts):
+        try:
+            return fn()
+        except Exception as exc:  # MLflow wraps sqlite3/SQLAlchemy errors in several types
+            if "locked" not in str(exc).lower() or i == attempts - 1:
+                raise
+            time.sleep(delay * (2**i))
+    raise AssertionError("unreachable")
+
+
+def setup(cfg: DictConfig) -> str:
+    """Point MLflow at the configured store and return the experiment id (created once)."""
+    uri = store_uri(cfg)
+    mlflow.set_tracking_uri(uri)
+    client = MlflowClient(uri)
+    name = str(cfg.tracking.experiment)
+
+    def get_or_create() -> str:
+        exp = client.get_experiment_by_name(name)
+        if exp is not None:
+            return str(exp.experiment_id)
+        try:
+            return str(client.create_experiment(name, artifact_location=artifact_root(cfg)))
+        except MlflowException:
+            # Another job created it between our look-up and create.
+            exp = client.get_experiment_by_name(name)
+            if exp is None:
+                raise
+            return str(exp.experiment_id)
+
+    return retry(get_or_create)
+
+
+def flatten(cfg: DictConfig | Mapping[str, Any]) -> dict[str, str]:
+    """Dotted keys → string values; lists are JSON, so ``[1.0, 0.8]`` stays one param."""
+    plain = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    out: dict[str, str] = {}
+
+    def visit(node: Any, prefix: str) -> None:
+        if isinstance(node, Mapping):
+            for k, v in node.items():
+                visit(v, f"{prefix}.{k}" if prefix else str(k))
+        else:
+            text = json.dumps(node) if isinstance(node, list) else str(node)
+            out[prefix] = text[:MAX_PARAM_LENGTH]
+
+    visit(plain, "")
+    return out
+
+
+def git_commit() -> str | None:
+    for where in (Path.cwd(), Path(__file__).resolve().parent):
+        try:
+            res = subprocess.run(
+                ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=5
+            )
+        except (OSError, subprocess.SubprocessError):
+            return None
+        if res.returncode == 0:
+            return res.stdout.strip()
+    return None
+
+
+@contextmanager
+def stage_run(
+    cfg: DictConfig,
+    stage: str,
+    run_name: str | None = None,
+    parent_run_id: str | None = None,
+    extra_tags: Mapping[str, str] | None = None,
+) -> Iterator[mlflow.ActiveRun]:
+    """One MLflow run for one stage execution, ended FINISHED / FAILED / KILLED truthfully."""
+    experiment_id = setup(cfg)
+    tags = {STAGE_TAG: stage, **(extra_tags or {})}
+    commit = git_commit()
+    if commit:
+        tags[COMMIT_TAG] = commit
+        tags["mlflow.source.git.commit"] = commit
+    if parent_run_id:
+        tags["mlflow.parentRunId"] = parent_run_id
+    run = retry(
+        lambda: mlflow.start_run(
+            experiment_id=experiment_id, run_name=run_name, tags=tags, nested=bool(parent_run_id)
+        )
+    )
+    try:
+        params = flatten(cfg)
+        items = sorted(params.items())
+        for i in range(0, len(items), 100):
+            retry(lambda chunk=dict(items[i : i + 100]): mlflow.log_params(chunk))  # type: ignore[misc]
+        mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
+        yield run
+    except KeyboardInterrupt:
+        mlflow.set_tag(ERROR_TAG, "interrupted")
+        mlflow.end_run(status="KILLED")
+        raise
+    except BaseException as exc:
+        if isinstance(exc, SystemExit) and exc.code in (0, None):
+            mlflow.end_run(status="FINISHED")
+            raise
+        mlflow.set_tag(ERROR_TAG, f"{type(exc).__name__}: {exc}"[:5000])
+        mlflow.end_run(status="FAILED")
+        raise
+    else:
+        mlflow.end_run(status="FINISHED")
+
+
+def log_dataframe(df: Any, name: str) -> None:
+    """Log a pandas DataFrame as an artifact; the suffix picks Parquet or CSV."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / name
+        if name.endswith(".parquet"):
+            df.to_parquet(path, index=False)
+        else:
+            df.to_csv(path, index=False)
+        mlflow.log_artifact(str(path))
+
+
+def log_metric_history(name: str, values: Any, start_step: int = 0) -> None:
+    """Log a whole series as one metric's history (one batch call, not one per point)."""
+    from mlflow.entities import Metric
+
+    now = int(time.time() * 1000)
+    metrics = [
+        Metric(name, float(v), now, start_step + i) for i, v in enumerate(values)
+    ]
+    client = MlflowClient()
+    run_id = mlflow.active_run().info.run_id  # type: ignore[union-attr]
+    for i in range(0, len(metrics), 1000):
+        retry(lambda chunk=metrics[i : i + 1000]: client.log_batch(run_id, metrics=chunk))  # type: ignore[misc]
+
+
+# ------------------------------------------------------------------------------------- lookup
+def find_stage_run(
+    cfg: DictConfig,
+    stage: str,
+    run_id: str | None = None,
+    match: Mapping[str, str] | None = None,
+    key: str = "run",
+) -> Run:
+    """The upstream run a stage consumes: ``run_id`` if given, else the latest FINISHED run of
+    ``stage`` in the configured experiment whose params equal ``match``.
+
+    Raises `ConfigError` with one sentence when the id does not exist, belongs to another stage,
+    did not finish, or when no run matches. ``key`` names the config key that carries the id.
+    """
+    experiment_id = setup(cfg)
+    client = MlflowClient(store_uri(cfg))
+    match = dict(match or {})
+    if run_id:
+        try:
+            run = client.get_run(run_id)
+        except MlflowException:
+            raise ConfigError(
+                f"{key}={run_id} is not allowed: no run with that id exists in the store "
+                f"{store_uri(cfg)}."
+            ) from None
+        got = run.data.tags.get(STAGE_TAG)
+        if got != stage:
+            raise ConfigError(
+                f"{key}={run_id} is not allowed: it is a {got or 'non-armexp'} run, and a "
+                f"{stage} run is needed here."
+            )
+        if run.info.status != "FINISHED":
+            raise ConfigError(
+                f"{key}={run_id} is not allowed: that {stage} run is {run.info.status}, and only "
+                "FINISHED runs can be used."
+            )
+        return run
+    clauses = [f"tags.`{STAGE_TAG}` = '{stage}'", "attributes.status = 'FINISHED'"]
+    clauses += [f"params.`{k}` = '{v}'" for k, v in match.items()]
+    runs = retry(
+        lambda: client.search_runs(
+            [experiment_id],
+            filter_string=" and ".join(clauses),
+            order_by=["attributes.start_time DESC"],
+            max_results=1,
+        )
+    )
+    if not runs:
+        wanted = ", ".join(f"{k}={v}" for k, v in match.items()) or "any config"
+        raise ConfigError(
+            f"{key} is not set and no FINISHED {stage} run with {wanted} exists in experiment "
+            f"'{cfg.tracking.experiment}' at {store_uri(cfg)}; run `armexp {stage}` with those "
+            f"settings first or pass {key}=<run id>."
+        )
+    log.info("using %s run %s (latest matching %s)", stage, runs[0].info.run_id, match)
+    return runs[0]
+
+
+def download_artifact(run_id: str, path: str, cfg: DictConfig) -> Path:
+    """Fetch one artifact of a run into a temporary folder and return its local path."""
+    mlflow.set_tracking_uri(store_uri(cfg))
+    dst = tempfile.mkdtemp(prefix="armexp-")
+    return Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=dst))
+
+
+def ui_command(cfg: DictConfig) -> list[str]:
+    """The `mlflow ui` command line that shows this store."""
+    cmd = ["mlflow", "ui", "--backend-store-uri", store_uri(cfg)]
+    root = artifact_root(cfg)
+    if root:
+        cmd += ["--default-artifact-root", root]
+    return cmd
+
+
+def environment_summary() -> dict[str, str]:
+    return {"pid": str(os.getpid())}
