@@ -55,25 +55,26 @@ def usage() -> str:
     return "\n".join(lines)
 
 
-def split_args(args: Sequence[str]) -> tuple[list[str], bool, bool]:
-    """(overrides, multirun, validate) from Hydra's command line."""
+def split_args(args: Sequence[str]) -> tuple[list[str], list[str], bool, bool]:
+    """(flags with their values, overrides, multirun, validate) from Hydra's command line."""
+    flags: list[str] = []
     overrides: list[str] = []
     multirun = False
     validate = True
-    skip = False
+    takes_value = False
     for a in args:
-        if skip:
-            skip = False
+        if takes_value:
+            flags.append(a)
+            takes_value = False
             continue
-        if a in ("-m", "--multirun"):
-            multirun = True
-        elif a in _NO_VALIDATE:
-            validate = False
-        elif a.startswith("-"):
-            skip = a in _VALUE_FLAGS
+        if a.startswith("-"):
+            flags.append(a)
+            multirun |= a in ("-m", "--multirun")
+            validate &= a not in _NO_VALIDATE
+            takes_value = a in _VALUE_FLAGS and "=" not in a
         else:
             overrides.append(a)
-    return overrides, multirun, validate
+    return flags, overrides, multirun, validate
 
 
 def sweep_combinations(overrides: Sequence[str], limit: int = 64) -> list[list[str]]:
@@ -113,7 +114,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         return EXIT_USAGE
     from armexp.config import ConfigError, config_dir, normalize_overrides, register_schemas
 
-    overrides, multirun, validate = split_args(args)
+    flags, overrides, multirun, validate = split_args(args)
     if validate:
         try:
             precheck(overrides, multirun)
@@ -140,8 +141,8 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             raise SystemExit(EXIT_USAGE) from None
 
     register_schemas()
-    argv = [a if a.startswith("-") else normalize_overrides([a])[0] for a in args]
-    sys.argv = [f"armexp {stage}", f"hydra.job.name={stage}", *argv]
+    # Hydra's parser wants the overrides as one contiguous block after the flags.
+    sys.argv = [f"armexp {stage}", *flags, *normalize_overrides(overrides), f"hydra.job.name={stage}"]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     try:
         app()

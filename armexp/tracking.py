@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import subprocess
 import tempfile
 import time
@@ -269,5 +268,17 @@ def ui_command(cfg: DictConfig) -> list[str]:
     return cmd
 
 
-def environment_summary() -> dict[str, str]:
-    return {"pid": str(os.getpid())}
+def tuned_gains(cfg: DictConfig, run_id: str | None = None, key: str = "tune_run") -> tuple[Run, dict[str, Any]]:
+    """Gains of a tune run: ``run_id``, or the latest FINISHED tune run for the same controller
+    and robot. Returns the run and its ``gains.yaml`` in config form."""
+    import yaml
+
+    run = find_stage_run(
+        cfg,
+        "tune",
+        run_id=run_id,
+        match={"controller.name": str(cfg.controller.name), "robot.name": str(cfg.robot.name)},
+        key=key,
+    )
+    path = download_artifact(run.info.run_id, "gains.yaml", cfg)
+    return run, yaml.safe_load(path.read_text())

@@ -1,0 +1,166 @@
+"""`armexp tune`: cuckoo search (Algorithm 2) of the configured controller's gains.
+
+Logs to one MLflow run: the best objective per iteration (metric history ``best_objective``),
+evaluations, wall time, the objective of the paper's published gains and of the configured gains
+on the same scenarios, the winning gains as params (``tuned.<gain>``) and as ``gains.yaml``
+(config form, ready for ``controller.gains``), every candidate (``candidates.csv``) and a
+convergence figure (``convergence.png``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import mlflow
+import numpy as np
+import pandas as pd
+import yaml
+from omegaconf import DictConfig
+
+from armexp import tracking
+from armexp.builders import build_plant, controller_gains, controller_kind
+from armexp.config import ConfigError
+from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, gain_mapping, gain_names, gain_vector
+from armexp.tune.cuckoo import CuckooResult, cuckoo_search
+from armexp.tune.objective import ObjectiveSettings, TuningObjective, make_scenarios
+
+FLUSH_EVERY = 25
+
+
+def search_box(cfg: DictConfig) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Gain names and their [lower, upper] from ``controller.bounds``."""
+    n = len(cfg.robot.lengths)
+    names = gain_names(controller_kind(cfg), n)
+    bounds = cfg.controller.bounds
+    missing = [g for g in names if g not in bounds]
+    if missing:
+        raise ConfigError(
+            f"controller.bounds lacks {', '.join(missing)}: give [lower, upper] for every gain of "
+            f"{cfg.controller.name} on a {n}-joint arm ({', '.join(names)})."
+        )
+    lower = np.array([float(bounds[g][0]) for g in names])
+    upper = np.array([float(bounds[g][1]) for g in names])
+    return names, lower, upper
+
+
+def build_objective(cfg: DictConfig, kind: int | None = None) -> TuningObjective:
+    settings = ObjectiveSettings(**dict(cfg.tuner.objective))
+    robot = cfg.robot
+    plant = build_plant(cfg)
+    scenarios = make_scenarios(
+        settings,
+        np.asarray(list(robot.joint_lower)),
+        np.asarray(list(robot.joint_upper)),
+        np.asarray(list(robot.velocity_bound)),
+        plant.dt,
+    )
+    return TuningObjective(plant, controller_kind(cfg) if kind is None else kind, scenarios, settings)
+
+
+def _convergence_figure(result: CuckooResult, reference: dict[str, float]) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    finite = np.isfinite(result.scores)
+    ax.scatter(
+        result.iterations[finite], result.scores[finite], s=4, alpha=0.25, color="grey",
+        label="candidates",
+    )
+    ax.plot(np.arange(1, len(result.history) + 1), result.history, color="C0", label="best")
+    for i, (label, value) in enumerate(reference.items()):
+        if np.isfinite(value):
+            ax.axhline(value, ls="--", color=f"C{i + 1}", label=label)
+    ax.set_yscale("log")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("objective W (Gaing)")
+    ax.set_title("Cuckoo search convergence")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    names, lower, upper = search_box(cfg)
+    with tracking.stage_run(cfg, "tune", run_name=cfg.tune.run_name) as active:
+        objective = build_objective(cfg)
+        n = len(cfg.robot.lengths)
+        kind = objective.kind
+        reference: dict[str, float] = {}
+        paper = build_objective(cfg, kind=ADAPTIVE) if kind != ADAPTIVE else objective
+        reference["objective_paper_gains"] = float(paper(gain_vector(ADAPTIVE, PAPER_GAINS, n)[None])[0])
+        reference["objective_config_gains"] = float(objective(controller_gains(cfg)[None])[0])
+        mlflow.log_metrics({k: v for k, v in reference.items() if np.isfinite(v)})
+
+        tuner = cfg.tuner
+        pending: list[float] = []
+        logged = 0
+        bar = None
+        if cfg.tune.progress and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            bar = tqdm(total=int(tuner.n_iterations), desc="cuckoo search", unit="it")
+
+        def flush() -> None:
+            nonlocal logged
+            if pending:
+                tracking.log_metric_history("best_objective", pending, start_step=logged + 1)
+                logged += len(pending)
+                pending.clear()
+
+        def on_iteration(iteration: int, partial: CuckooResult) -> None:
+            pending.append(float(partial.best_f))
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(best=f"{partial.best_f:.4g}")
+            if len(pending) >= FLUSH_EVERY:
+                flush()
+
+        start = time.perf_counter()
+        try:
+            result = cuckoo_search(
+                objective, lower, upper,
+                n_nests=int(tuner.n_nests), n_iterations=int(tuner.n_iterations),
+                pa=float(tuner.pa), beta=float(tuner.beta), step_scale=float(tuner.step_scale),
+                seed=int(tuner.seed), callback=on_iteration,
+            )
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        finally:
+            wall = time.perf_counter() - start
+            flush()  # keep the history logged so far, even when interrupted
+            if bar is not None:
+                bar.close()
+
+        crit = objective.criteria(result.best_x[None])
+        metrics = {
+            "best_objective": float(result.best_f),
+            "n_evaluations": float(result.n_evaluations),
+            "wall_time_s": wall,
+            "evaluations_per_s": result.n_evaluations / wall if wall > 0 else float("nan"),
+            "best_overshoot": float(crit.overshoot.mean()),
+            "best_rise_time_s": float(crit.rise_time.mean()),
+            "best_settling_time_s": float(crit.settling_time.mean()),
+            "best_steady_state_error": float(crit.steady_state_error.mean()),
+        }
+        mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
+        mapping = gain_mapping(kind, result.best_x, n)
+        mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, result.best_x, strict=True)})
+        mlflow.log_text(yaml.safe_dump(mapping, sort_keys=False), "gains.yaml")
+        table = pd.DataFrame(result.evaluations, columns=names)
+        table.insert(0, "iteration", result.iterations)
+        table["objective"] = result.scores
+        tracking.log_dataframe(table, "candidates.csv")
+        fig = _convergence_figure(result, reference)
+        mlflow.log_figure(fig, "convergence.png")
+
+        print(
+            f"tune: run {active.info.run_id} | {cfg.controller.name} | best W {result.best_f:.4g} "
+            f"(paper gains {reference['objective_paper_gains']:.4g}) | "
+            f"{result.n_evaluations} evaluations in {wall:.1f} s | gains {mapping}"
+        )
+        return {**metrics, **reference}
