@@ -7,7 +7,7 @@ from omegaconf import DictConfig
 
 from armexp.sim import scenario as scenarios
 from armexp.sim.controllers import KINDS, gain_vector
-from armexp.sim.model import SOURCE_DQ, SOURCE_Q, Array, ArmModel, Plant, Uncertainty
+from armexp.sim.model import SOURCE_DQ, SOURCE_Q, ArmModel, Array, Plant, Uncertainty
 
 
 def build_arm(robot: DictConfig) -> ArmModel:
@@ -74,7 +74,9 @@ def build_scenario(cfg: DictConfig) -> scenarios.Scenario:
     dt = float(cfg.controller.dt)
     if sc.kind == "switching":
         rng = np.random.default_rng(int(sc.seed))
-        return scenarios.switching(rng, bound, sc.duration, sc.switch_period, dt, q0, offset, sc.scale)
+        return scenarios.switching(
+            rng, bound, sc.duration, sc.switch_period, dt, q0, offset, sc.scale
+        )
     if sc.kind == "hold":
         return scenarios.hold(sc.duration, dt, q0, offset)
     return scenarios.sine(bound, sc.duration, sc.period, dt, q0, offset, sc.scale)

@@ -29,10 +29,31 @@ STAGES: dict[str, tuple[str | None, str]] = {
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
 }
 
-_VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
-                "--config-dir", "-cd", "--experimental-rerun", "--info", "-i"}
-_NO_VALIDATE = {"--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc",
-                "--version"}
+_VALUE_FLAGS = {
+    "--cfg",
+    "-c",
+    "--package",
+    "-p",
+    "--config-path",
+    "-cp",
+    "--config-name",
+    "-cn",
+    "--config-dir",
+    "-cd",
+    "--experimental-rerun",
+    "--info",
+    "-i",
+}
+_NO_VALIDATE = {
+    "--help",
+    "-h",
+    "--hydra-help",
+    "--info",
+    "-i",
+    "--shell-completion",
+    "-sc",
+    "--version",
+}
 
 
 def usage() -> str:
@@ -142,7 +163,12 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     register_schemas()
     # Hydra's parser wants the overrides as one contiguous block after the flags.
-    sys.argv = [f"armexp {stage}", *flags, *normalize_overrides(overrides), f"hydra.job.name={stage}"]
+    sys.argv = [
+        f"armexp {stage}",
+        *flags,
+        *normalize_overrides(overrides),
+        f"hydra.job.name={stage}",
+    ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     try:
         app()

@@ -185,9 +185,7 @@ def log_metric_history(name: str, values: Any, start_step: int = 0) -> None:
     from mlflow.entities import Metric
 
     now = int(time.time() * 1000)
-    metrics = [
-        Metric(name, float(v), now, start_step + i) for i, v in enumerate(values)
-    ]
+    metrics = [Metric(name, float(v), now, start_step + i) for i, v in enumerate(values)]
     client = MlflowClient()
     run_id = mlflow.active_run().info.run_id  # type: ignore[union-attr]
     for i in range(0, len(metrics), 1000):
@@ -256,7 +254,9 @@ def download_artifact(run_id: str, path: str, cfg: DictConfig) -> Path:
     """Fetch one artifact of a run into a temporary folder and return its local path."""
     mlflow.set_tracking_uri(store_uri(cfg))
     dst = tempfile.mkdtemp(prefix="armexp-")
-    return Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=dst))
+    return Path(
+        mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=dst)
+    )
 
 
 def ui_command(cfg: DictConfig) -> list[str]:
@@ -268,7 +268,9 @@ def ui_command(cfg: DictConfig) -> list[str]:
     return cmd
 
 
-def tuned_gains(cfg: DictConfig, run_id: str | None = None, key: str = "tune_run") -> tuple[Run, dict[str, Any]]:
+def tuned_gains(
+    cfg: DictConfig, run_id: str | None = None, key: str = "tune_run"
+) -> tuple[Run, dict[str, Any]]:
     """Gains of a tune run: ``run_id``, or the latest FINISHED tune run for the same controller
     and robot. Returns the run and its ``gains.yaml`` in config form."""
     import yaml

@@ -73,9 +73,9 @@ def normalize_overrides(overrides: Sequence[str]) -> list[str]:
     for o in overrides:
         key, eq, value = o.partition("=")
         group = key.replace(".", "/")
-        if eq and "." in key and not key.startswith(("+", "~", "hydra")):
-            if value in group_options(group):
-                o = f"{group}={value}"
+        nested_group = eq and "." in key and not key.startswith(("+", "~", "hydra"))
+        if nested_group and value in group_options(group):
+            o = f"{group}={value}"
         out.append(o)
     return out
 
@@ -99,15 +99,14 @@ def translate_error(exc: BaseException, overrides: Sequence[str] = ()) -> Config
     if exc.__cause__ is not None:
         msg += "\n" + str(exc.__cause__)
     m = _MISSING_OPTION.search(msg)
-    if isinstance(exc, MissingConfigException) or m:
-        if m:
-            group, option = m.group(1), m.group(2)
-            options = group_options(group)
-            if options:
-                return ConfigError(
-                    f"{group.replace('/', '.')}={option} is not a known option; choose one of: "
-                    f"{', '.join(options)}."
-                )
+    if (isinstance(exc, MissingConfigException) or m) and m:
+        group, option = m.group(1), m.group(2)
+        options = group_options(group)
+        if options:
+            return ConfigError(
+                f"{group.replace('/', '.')}={option} is not a known option; choose one of: "
+                f"{', '.join(options)}."
+            )
     key_m = _FULL_KEY.search(msg) or _COULD_NOT_OVERRIDE.search(msg)
     key = key_m.group(1) if key_m else None
     value = _override_value(key, overrides) if key else None
@@ -116,10 +115,12 @@ def translate_error(exc: BaseException, overrides: Sequence[str] = ()) -> Config
             f"{key}={value} does not fit here: it must be a group of settings "
             f"(see `armexp <stage> --cfg job`)."
         )
-    if _TYPE.search(msg) and key:
-        shown = value if value is not None else (_VALUE.search(msg) or [None, "?"])[1]
+    type_m = _TYPE.search(msg)
+    if type_m and key:
+        value_m = _VALUE.search(msg)
+        shown = value if value is not None else (value_m.group(1) if value_m else "?")
         kind = {"float": "a number", "integer": "an integer", "bool": "true or false"}.get(
-            _TYPE.search(msg).group(1).lower(), "of another type"  # type: ignore[union-attr]
+            type_m.group(1).lower(), "of another type"
         )
         return ConfigError(f"{key}={shown} is not allowed: it must be {kind}.")
     nis = _NOT_IN_STRUCT.search(msg)
@@ -170,7 +171,7 @@ def _walk(node: Any, path: str) -> None:
             if OmegaConf.is_missing(node, key):
                 continue
             child = node[key]
-            sub = f"{path}.{key}" if path else str(key)
+            sub = f"{path}.{key!s}" if path else str(key)
             if key in checks:
                 plain = OmegaConf.to_container(child) if _is_container(child) else child
                 if not checks[key](plain):
@@ -210,9 +211,7 @@ def _cross_checks(cfg: DictConfig) -> None:
     for i, term in enumerate(unc.f_terms):
         for key in ("joint", "of"):
             if not 1 <= term[key] <= n:
-                raise fail(
-                    f"robot.uncertainty.f_terms[{i}].{key}", term[key], f"joints are 1..{n}"
-                )
+                raise fail(f"robot.uncertainty.f_terms[{i}].{key}", term[key], f"joints are 1..{n}")
     ctrl = cfg.get("controller")
     if ctrl is None or OmegaConf.is_missing(cfg, "controller"):
         return
@@ -233,9 +232,9 @@ def _cross_checks(cfg: DictConfig) -> None:
                 f"{box[0]} must be below the upper bound {box[1]}."
             )
     scenario = cfg.get("scenario")
-    if scenario is not None and not OmegaConf.is_missing(cfg, "scenario"):
-        if len(scenario.offset) not in (1, n):
-            raise fail("scenario.offset", list(scenario.offset), f"give 1 or {n} values")
+    has_scenario = scenario is not None and not OmegaConf.is_missing(cfg, "scenario")
+    if has_scenario and len(scenario.offset) not in (1, n):
+        raise fail("scenario.offset", list(scenario.offset), f"give 1 or {n} values")
     tuner = cfg.get("tuner")
     if tuner is not None and not OmegaConf.is_missing(cfg, "tuner"):
         obj = tuner.objective

@@ -36,7 +36,10 @@ def convergence_time(t: Array, err: Array, band: float) -> float:
 
 
 def tracking_metrics(
-    rows: Array, n: int, lengths: Array, band_fraction: float = BAND_FRACTION,
+    rows: Array,
+    n: int,
+    lengths: Array,
+    band_fraction: float = BAND_FRACTION,
     band_floor: float = BAND_FLOOR,
 ) -> dict[str, float]:
     t = rows[:, 0]

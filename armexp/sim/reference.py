@@ -50,8 +50,15 @@ def acceleration(plant: Plant, q: Array, dq: Array, tau: Array, t: float, u: Arr
 
 
 def control(
-    plant: Plant, kind: int, gains: Array, q: Array, dq: Array, qd: Array, dqd: Array,
-    integral: Array, rho: float,
+    plant: Plant,
+    kind: int,
+    gains: Array,
+    q: Array,
+    dq: Array,
+    qd: Array,
+    dqd: Array,
+    integral: Array,
+    rho: float,
 ) -> tuple[Array, float]:
     """τ and ρ̂' (Algorithm 3), or the PID torque and 0."""
     n = q.size

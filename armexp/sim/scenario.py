@@ -30,7 +30,9 @@ class Scenario:
 def _hold_steps(period: float, dt: float) -> int:
     steps = round(period / dt)
     if steps < 1 or abs(steps * dt - period) > 1e-9:
-        raise ValueError(f"switch_period={period} must be a whole number of controller periods {dt}.")
+        raise ValueError(
+            f"switch_period={period} must be a whole number of controller periods {dt}."
+        )
     return int(steps)
 
 
@@ -54,11 +56,18 @@ def switching(
 def hold(duration: float, dt: float, q0: Array, offset: Array) -> Scenario:
     """q̇_d = 0: only the initial offset has to be removed."""
     n_steps = max(1, round(duration / dt))
-    return Scenario(np.asarray(q0, float), np.asarray(offset, float), np.zeros((1, len(q0))), n_steps)
+    return Scenario(
+        np.asarray(q0, float), np.asarray(offset, float), np.zeros((1, len(q0))), n_steps
+    )
 
 
 def sine(
-    bound: Array, duration: float, period: float, dt: float, q0: Array, offset: Array,
+    bound: Array,
+    duration: float,
+    period: float,
+    dt: float,
+    q0: Array,
+    offset: Array,
     scale: float = 1.0,
 ) -> Scenario:
     """q̇_d = scale·bound·sin(2πt/period), updated every controller period."""

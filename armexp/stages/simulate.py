@@ -54,10 +54,15 @@ def run(cfg: DictConfig) -> dict[str, float]:
             sim_steps_per_s=rows.shape[0] / wall if wall > 0 else float("nan"),
         )
         mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
-        tracking.log_dataframe(pd.DataFrame(rows, columns=trajectory_columns(n)), "trajectory.parquet")
+        tracking.log_dataframe(
+            pd.DataFrame(rows, columns=trajectory_columns(n)), "trajectory.parquet"
+        )
         log.info(
             "simulate run %s: rms_e1=%.3g rad, convergence_time=%.3g s, diverged=%s",
-            active.info.run_id, metrics["rms_e1"], metrics["convergence_time"], sim.diverged,
+            active.info.run_id,
+            metrics["rms_e1"],
+            metrics["convergence_time"],
+            sim.diverged,
         )
         print(
             f"simulate: run {active.info.run_id} | rms |e1| {metrics['rms_e1']:.3g} rad | "

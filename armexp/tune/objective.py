@@ -97,7 +97,7 @@ class Criteria:
     score: Array  # (K,)
 
 
-def _first_index(mask: Array) -> Array:
+def _first_index(mask: np.ndarray) -> np.ndarray:
     """Index of the first True along the last axis, or -1."""
     idx = mask.argmax(axis=-1)
     return np.where(mask.any(axis=-1), idx, -1)
@@ -107,7 +107,7 @@ def criteria_from_errors(
     err: Array, offset: Array, dt: float, settings: ObjectiveSettings, completed: Array
 ) -> Criteria:
     """Criteria from e1 traces ``err`` (K, S, T, n) of runs started at ``offset`` (S, n)."""
-    k, s, t_len, n = err.shape
+    _k, _s, t_len, _n = err.shape
     horizon = t_len * dt
     eps = np.moveaxis(err / offset[None, :, None, :], 2, 3)  # (K, S, n, T)
     diverged = completed < t_len
@@ -155,8 +155,16 @@ class TuningObjective:
         cand = np.ascontiguousarray(np.atleast_2d(candidates), dtype=np.float64)
         err = np.empty((cand.shape[0], sc.q0.shape[0], sc.n_steps, sc.q0.shape[1]))
         done = simulate_batch(
-            self.kind, cand, sc.q0, sc.offset, sc.commands, sc.hold_steps, self._model,
-            self.plant.dt, sc.seeds, err,
+            self.kind,
+            cand,
+            sc.q0,
+            sc.offset,
+            sc.commands,
+            sc.hold_steps,
+            self._model,
+            self.plant.dt,
+            sc.seeds,
+            err,
         )
         return err, done
 

@@ -1,0 +1,94 @@
+"""Wall time of the paper's CSO budget on the controller objective, against a plain loop.
+
+Run: ``python benchmarks/tune_speed.py`` (``--quick`` for a smaller budget).
+
+Prints, measured in the same run:
+
+* the paper budget (15 nests, 200 iterations ≈ 6000 candidate evaluations, each a closed-loop
+  simulation of the default objective's scenarios) through the batched compiled core, all cores;
+* evaluations per second of that run;
+* a plain per-candidate Python loop over the plain-numpy reference simulator, timed on a few
+  candidates and extrapolated per evaluation;
+* the ratio, and PASS/MISS against the targets (≤ 10 s wall, ≥ 100× the plain loop).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numba
+import numpy as np
+
+from armexp.config import compose_config
+from armexp.sim import reference
+from armexp.stages.tune import build_objective, search_box
+from armexp.tune import cuckoo_search
+
+
+def plain_loop_seconds_per_eval(obj, candidates: np.ndarray) -> float:  # type: ignore[no-untyped-def]
+    """One candidate at a time, every scenario through the numpy reference simulator."""
+    sc = obj.scenarios
+    start = time.perf_counter()
+    for gains in candidates:
+        for s in range(sc.q0.shape[0]):
+            cmds = np.repeat(sc.commands[s], sc.hold_steps, axis=0)
+            reference.simulate(
+                obj.plant,
+                obj.kind,
+                gains,
+                sc.q0[s] + sc.offset[s],
+                sc.q0[s],
+                cmds,
+                int(sc.seeds[s]),
+            )
+    return (time.perf_counter() - start) / len(candidates)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="40 iterations instead of 200")
+    ap.add_argument("--controller", default="subsystem_adaptive")
+    ap.add_argument("--plain-candidates", type=int, default=2)
+    args = ap.parse_args()
+    iterations = 40 if args.quick else 200
+    cfg = compose_config([f"controller={args.controller}", f"tuner.n_iterations={iterations}"])
+    obj = build_objective(cfg)
+    _, lower, upper = search_box(cfg)
+    obj(np.atleast_2d(lower))  # compile outside the timing
+
+    start = time.perf_counter()
+    res = cuckoo_search(
+        obj, lower, upper, n_nests=cfg.tuner.n_nests, n_iterations=iterations, seed=0
+    )
+    wall = time.perf_counter() - start
+    evals_per_s = res.n_evaluations / wall
+    sc = obj.scenarios
+    steps = res.n_evaluations * sc.q0.shape[0] * sc.n_steps
+
+    rng = np.random.default_rng(0)
+    cands = rng.uniform(lower, upper, size=(args.plain_candidates, lower.size))
+    plain = plain_loop_seconds_per_eval(obj, cands)
+    ratio = plain * evals_per_s
+
+    print(f"machine: {os.cpu_count()} cores, numba threads {numba.get_num_threads()}")
+    print(f"objective: {sc.q0.shape[0]} scenarios x {sc.n_steps} steps per evaluation")
+    print(
+        f"CSO {cfg.tuner.n_nests} nests x {iterations} iterations: {res.n_evaluations} "
+        f"evaluations in {wall:.2f} s ({evals_per_s:.0f} evaluations/s, "
+        f"{steps / wall / 1e6:.2f} M controller steps/s), best W {res.best_f:.4g}"
+    )
+    print(
+        f"plain per-candidate loop (numpy reference): {plain:.3f} s per evaluation "
+        f"({1 / plain:.2f} evaluations/s) -> the same budget would take "
+        f"{plain * res.n_evaluations / 60:.0f} min"
+    )
+    print(f"speed-up over the plain loop: {ratio:.0f}x")
+    if not args.quick:
+        print(f"target paper budget <= 10 s: {'PASS' if wall <= 10 else 'MISS'} ({wall:.2f} s)")
+    print(f"target >= 100x plain loop: {'PASS' if ratio >= 100 else 'MISS'} ({ratio:.0f}x)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,44 @@
+"""Developer sessions: ``nox -s tests lint typecheck bench demo``."""
+
+from __future__ import annotations
+
+import nox
+
+nox.options.sessions = ["tests", "lint", "typecheck"]
+INSTALL = ("-c", "constraints.txt", "-e", ".[dev]")
+
+
+@nox.session
+def tests(session: nox.Session) -> None:
+    """The default (fast) test suite; pass ``-- -m slow`` for the long tests."""
+    session.install(*INSTALL)
+    session.run("pytest", *session.posargs)
+
+
+@nox.session
+def lint(session: nox.Session) -> None:
+    session.install("ruff")
+    session.run("ruff", "check", ".")
+    session.run("ruff", "format", "--check", ".")
+
+
+@nox.session
+def typecheck(session: nox.Session) -> None:
+    session.install(*INSTALL)
+    session.run("mypy", "armexp")
+
+
+@nox.session
+def bench(session: nox.Session) -> None:
+    """Print the performance figures named in the issues."""
+    session.install(*INSTALL)
+    session.run("python", "benchmarks/sim_speed.py")
+    session.run("python", "benchmarks/tune_speed.py")
+
+
+@nox.session
+def demo(session: nox.Session) -> None:
+    """Small end-to-end run into ./runs: tune both controllers, simulate with each."""
+    session.install(*INSTALL)
+    session.run("armexp", "tune", "experiment=smoke", "-m", "controller=subsystem_adaptive,pid")
+    session.run("armexp", "simulate", "-m", "controller=subsystem_adaptive,pid")

@@ -1,0 +1,100 @@
+"""The config tree composes for every option, and bad values stop with one sentence."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+from omegaconf import DictConfig
+
+from armexp.config import ConfigError, compose_config, group_options
+
+GROUPS = [
+    "robot",
+    "obstacles",
+    "controller",
+    "tuner",
+    "agent",
+    "env",
+    "tasks",
+    "scenario",
+    "tracking",
+    "experiment",
+]
+
+
+def test_every_group_of_the_design_exists_with_options() -> None:
+    for group in GROUPS:
+        assert group_options(group), group
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_every_option_composes_and_validates(
+    group: str, compose: Callable[..., DictConfig]
+) -> None:
+    for option in group_options(group):
+        cfg = compose(f"{group}={option}")
+        if group not in ("experiment", "scenario", "tracking", "env"):
+            assert cfg[group].name == option
+
+
+def test_default_config_values_match_the_paper(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose()
+    assert cfg.robot.name == "two_link_paper"
+    assert list(cfg.robot.lengths) == [1.0, 0.8] and list(cfg.robot.masses) == [20.0, 15.0]
+    assert dict(cfg.controller.gains) == {
+        "a0": 668.0,
+        "a1": 552.0,
+        "b1": 1.8,
+        "c1": 0.001,
+        "r1": 0.69,
+    }
+    assert (cfg.tuner.n_nests, cfg.tuner.n_iterations, cfg.tuner.pa, cfg.tuner.beta) == (
+        15,
+        200,
+        0.25,
+        1.5,
+    )
+    a = cfg.agent
+    assert (
+        a.batch_size,
+        a.tau,
+        a.buffer_size,
+        a.learning_starts,
+        a.gamma,
+        a.learning_rate,
+        a.episodes,
+    ) == (512, 0.001, 1_000_000, 1000, 0.995, 0.001, 20000)
+    assert list(cfg.robot.velocity_bound) == [0.1, 0.4]
+    assert cfg.env.reach_threshold == 0.04 and cfg.env.max_steps == 1000
+
+
+def test_gains_preset_override_and_experiment_preset(compose: Callable[..., DictConfig]) -> None:
+    assert compose("controller.gains=paper").controller.gains.a0 == 668.0
+    smoke = compose("experiment=smoke")
+    assert smoke.tuner.name == "cso_fast" and smoke.agent.name == "sac_fast"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "words"),
+    [
+        (["controller.gains.a0=-1"], ["controller.gains.a0=-1", "> 0"]),
+        (["robot=four_link"], ["robot=four_link", "three_link", "two_link_paper"]),
+        (["controller.bounds.a0=[5,1]"], ["controller.bounds.a0", "lower bound 5.0"]),
+        (["controller.gains.a1=abc"], ["controller.gains.a1=abc", "number"]),
+        (["tuner.pa=1.5"], ["tuner.pa=1.5", "[0.0, 1.0]"]),
+        (["tuner.n_nests=1"], ["tuner.n_nests=1", "≥ 2"]),
+        (["robot=three_link", "controller=pid"], ["controller.gains.kp", "3 joints"]),
+        (["robot.q0=[3.0,0.0]"], ["robot.q0[0]=3.0", "within"]),
+        (["nonsense_key=1"], ["nonsense_key", "not a config key"]),
+        (["scenario.kind=zigzag"], ["scenario.kind='zigzag'", "switching, hold, sine"]),
+        (["seed=0,1"], ["-m"]),
+    ],
+)
+def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:
+    with pytest.raises(ConfigError) as info:
+        compose_config(overrides)
+    msg = str(info.value)
+    assert "\n" not in msg and msg.endswith(".")
+    for w in words:
+        assert w in msg, (w, msg)

@@ -1,0 +1,85 @@
+"""Run status, params and look-up of the MLflow backbone."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mlflow
+import pytest
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig
+
+from armexp import tracking
+from armexp.config import ConfigError
+
+
+def _only_run(cfg: DictConfig) -> mlflow.entities.Run:
+    client = MlflowClient(tracking.store_uri(cfg))
+    exp = client.get_experiment_by_name("armexp")
+    (run,) = client.search_runs([exp.experiment_id])
+    return run
+
+
+def test_store_defaults_to_sqlite_under_runs_dir(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose()
+    assert tracking.store_uri(cfg).startswith("sqlite:///")
+    assert tracking.store_uri(cfg).endswith("/runs/mlflow.db")
+    assert tracking.artifact_root(cfg).endswith("/runs/artifacts")  # type: ignore[union-attr]
+
+
+def test_flatten_keeps_lists_as_one_param(compose: Callable[..., DictConfig]) -> None:
+    flat = tracking.flatten(compose())
+    assert flat["robot.lengths"] == "[1.0, 0.8]"
+    assert flat["controller.gains.r1"] == "0.69"
+    assert flat["robot.uncertainty.f_terms"].startswith('[{"joint": 1')
+
+
+def test_failed_stage_is_failed_and_keeps_what_was_logged(
+    compose: Callable[..., DictConfig],
+) -> None:
+    cfg = compose()
+    with pytest.raises(RuntimeError), tracking.stage_run(cfg, "simulate"):
+        mlflow.log_metric("partial", 1.5)
+        raise RuntimeError("boom")
+    run = _only_run(cfg)
+    assert run.info.status == "FAILED"
+    assert run.data.metrics["partial"] == 1.5
+    assert run.data.tags["armexp.error"] == "RuntimeError: boom"
+    assert run.data.tags["armexp.stage"] == "simulate"
+    assert run.data.params["robot.name"] == "two_link_paper"
+
+
+def test_interrupted_stage_is_killed(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose()
+    with pytest.raises(KeyboardInterrupt), tracking.stage_run(cfg, "tune"):
+        mlflow.log_metric("partial", 2.0)
+        raise KeyboardInterrupt
+    run = _only_run(cfg)
+    assert run.info.status == "KILLED" and run.data.metrics["partial"] == 2.0
+
+
+def test_lookup_errors_name_the_key(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose()
+    with pytest.raises(ConfigError, match=r"no FINISHED tune run with controller\.name="):
+        tracking.tuned_gains(cfg)
+    with tracking.stage_run(cfg, "simulate") as run:
+        pass
+    with pytest.raises(ConfigError, match="it is a simulate run, and a tune run is needed"):
+        tracking.tuned_gains(cfg, run_id=run.info.run_id)
+    with pytest.raises(ConfigError, match=r"tune_run=nope is not allowed: no run"):
+        tracking.tuned_gains(cfg, run_id="nope")
+
+
+def test_latest_matching_tune_run_is_found(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose()
+    ids = []
+    for a0 in (100.0, 200.0):
+        with tracking.stage_run(cfg, "tune") as run:
+            mlflow.log_text(f"a0: {a0}\n", "gains.yaml")
+            ids.append(run.info.run_id)
+    with tracking.stage_run(compose("controller=pid"), "tune"):
+        mlflow.log_text("kp: [1, 2]\n", "gains.yaml")
+    run, gains = tracking.tuned_gains(cfg)
+    assert run.info.run_id == ids[-1] and gains == {"a0": 200.0}
+    run, gains = tracking.tuned_gains(cfg, run_id=ids[0])
+    assert gains == {"a0": 100.0}

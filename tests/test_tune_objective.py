@@ -1,0 +1,88 @@
+"""The CSO objective: criteria on known signals, and tuning results on the real closed loop."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from omegaconf import DictConfig
+
+from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
+from armexp.stages.tune import build_objective, search_box
+from armexp.tune import cuckoo_search
+from armexp.tune.objective import ObjectiveSettings, criteria_from_errors
+
+DT = 1e-3
+
+
+def _criteria(trace: np.ndarray, settings: ObjectiveSettings | None = None):  # type: ignore[no-untyped-def]
+    err = (0.05 * trace)[None, None, :, None]
+    done = np.array([[trace.size]])
+    return criteria_from_errors(err, np.array([[0.05]]), DT, settings or ObjectiveSettings(), done)
+
+
+def test_criteria_of_a_first_order_decay() -> None:
+    tau = 0.02
+    t = np.arange(600) * DT
+    c = _criteria(np.exp(-t / tau))
+    assert c.overshoot[0, 0, 0] == 0.0
+    assert c.rise_time[0, 0, 0] == pytest.approx(tau * np.log(9), abs=2 * DT)
+    assert c.settling_time[0, 0, 0] == pytest.approx(tau * np.log(50), abs=2 * DT)
+    assert c.steady_state_error[0, 0, 0] < 1e-8
+    w = (1 - np.exp(-1)) * 0 + np.exp(-1) * (tau * np.log(50) - tau * np.log(9))
+    assert c.score[0] == pytest.approx(w, abs=2 * DT)
+
+
+def test_criteria_of_an_underdamped_response() -> None:
+    zeta, wn = 0.3, 60.0
+    t = np.arange(600) * DT
+    wd = wn * np.sqrt(1 - zeta**2)
+    phi = np.arccos(zeta)
+    trace = np.exp(-zeta * wn * t) * np.sin(wd * t + phi) / np.sin(phi)
+    c = _criteria(trace)
+    assert c.overshoot[0, 0, 0] == pytest.approx(
+        np.exp(-zeta * np.pi / np.sqrt(1 - zeta**2)), rel=0.02
+    )
+
+
+def test_error_that_never_settles_and_divergence() -> None:
+    t = np.arange(400) * DT
+    stuck = _criteria(np.full(t.size, 0.5))
+    assert stuck.rise_time[0, 0, 0] == pytest.approx(0.4)  # never reaches 10 %: the horizon
+    assert stuck.settling_time[0, 0, 0] == pytest.approx(0.4)
+    assert stuck.steady_state_error[0, 0, 0] == pytest.approx(0.5)
+    err = np.full((1, 1, 400, 1), np.nan)
+    c = criteria_from_errors(err, np.array([[0.05]]), DT, ObjectiveSettings(), np.array([[10]]))
+    assert c.diverged.all() and c.score[0] == np.inf
+
+
+def test_absurd_gains_score_inf_without_crashing(compose: Callable[..., DictConfig]) -> None:
+    obj = build_objective(compose("tuner.objective.n_scenarios=2", "tuner.objective.horizon=0.1"))
+    scores = obj(np.array([[1e7, 1e7, 10.0, 1.0, 0.01], [668, 552, 1.8, 0.001, 0.69]]))
+    assert scores[0] == np.inf and np.isfinite(scores[1])
+
+
+def test_tuned_adaptive_gains_beat_the_papers(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose("tuner.objective.n_scenarios=4", "tuner.objective.horizon=0.3")
+    obj = build_objective(cfg)
+    _, lower, upper = search_box(cfg)
+    paper = obj(gain_vector(ADAPTIVE, PAPER_GAINS, 2)[None])[0]
+    res = cuckoo_search(obj, lower, upper, n_nests=10, n_iterations=30, seed=1)
+    assert res.best_f <= paper
+    assert np.all((res.best_x >= lower) & (res.best_x <= upper))
+
+
+def test_tuned_pid_is_stable_on_every_scenario(compose: Callable[..., DictConfig]) -> None:
+    cfg = compose("controller=pid", "tuner.objective.n_scenarios=4", "tuner.objective.horizon=0.4")
+    obj = build_objective(cfg)
+    assert obj.kind == PID
+    _, lower, upper = search_box(cfg)
+    res = cuckoo_search(obj, lower, upper, n_nests=10, n_iterations=30, seed=1)
+    crit = obj.criteria(res.best_x[None])
+    assert not crit.diverged.any()
+    err, _ = obj.simulate(res.best_x[None])
+    offset = obj.scenarios.offset
+    # bounded error: never more than twice the initial offset, and well inside it at the end
+    assert np.abs(err).max() <= 2 * np.abs(offset).max()
+    assert np.abs(err[:, :, -100:, :]).max() < 0.2 * np.abs(offset).max()
