@@ -59,7 +59,7 @@ def gain_mapping(kind: int, vector: Array, n: int) -> dict[str, float | list[flo
     return {k: v[i * n : (i + 1) * n] for i, k in enumerate(PID_GAIN_NAMES)}
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def control(
     kind: int,
     gains: Array,

@@ -1,0 +1,852 @@
+"""The compiled closed loop: controller + RK4 plant at the controller period (DESIGN.md §3).
+
+Per controller step k (t_k = k·dt):
+
+1. u ~ U(0,1) for τ_d is drawn for this period (`armexp.sim.noise`).
+2. The controller computes τ from the measured state and M(q); τ is held over the step.
+3. The plant q̈ = M⁻¹(τ − C q̇ − G) + F + τ_d(t) (eq. 2) advances by classic RK4.
+4. q_d integrates the held q̇_d exactly; ρ̂ (eq. 12) and the PID integral advance by explicit Euler.
+
+The closed-loop state is one float vector ``[q, q̇, q_d, ∫e1 dt, ρ̂]`` (length 4n + 1).
+`advance` runs k steps in one call (one environment step is 30 of them); `simulate_batch` runs
+many gain candidates × reference scenarios in parallel for the tuner.
+
+Speed. Every angle the plant takes a cosine or sine of is linear in (q, q̇, t): the absolute link
+angles θ_a, the F-term arguments freq·q_j or freq·q̇_j, and τ_d's freq·t. The work buffer keeps,
+for each of them, the angle φ₀ at the current step's start with cos φ₀ and sin φ₀. Any other
+angle φ of the same slot (an RK4 stage, the next step's start) is reached by the angle-addition
+rotation by δ = φ − φ₀, with cos δ − 1 and sin δ from their Taylor polynomials (degree 8 and 7:
+truncation < 1e-19 for |δ| ≤ `ROTATE_MAX`). libm is called instead when |δ| > `ROTATE_MAX`, and
+for every slot at each step index that is a multiple of `ANCHOR_PERIOD` or when the buffer is
+fresh (``make_work``, ``clear_cache``), so rounding cannot accumulate for more than 64 steps.
+Because φ₀ is stored with its cosine and sine, the result is correct for any state (a reset, an
+edited state, another model): the cache only decides how cos φ is computed. The rule depends on
+the step index and the buffer alone, so one long `advance` and many short ones give bit-identical
+trajectories. The two-link arm has an unrolled path (2×2 solve with one division); other n use
+generic loops and a Cholesky solve.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from armexp.sim.controllers import KINDS, control
+from armexp.sim.dynamics import absolute_angles, cholesky_solve, mass_and_bias_cs, tip_position
+from armexp.sim.model import SOURCE_Q, Array, Plant
+from armexp.sim.noise import stream_key, uniform
+
+#: Above this joint speed (rad/s) a run counts as diverged; no physical arm gets near it.
+DIVERGENCE_SPEED = 1e4
+#: Every slot's cosine and sine are recomputed by libm at step indices that are multiples of this.
+ANCHOR_PERIOD = 64
+#: Largest angle step |δ| (rad) taken by rotation rather than libm.
+ROTATE_MAX = 1.0 / 32.0
+#: F-term rows whose angles the default work buffer caches (rows beyond it use libm).
+MAX_TERMS = 8
+
+Model = tuple[Array, Array, Array, Array, Array, Array]
+
+_FAST = {"contract"}  # FMA contraction only: results move by rounding, never by reassociation.
+_ANCHOR_MASK = ANCHOR_PERIOD - 1
+# Taylor coefficients of cos and sin (1/k! with signs folded where used).
+_M2 = -0.5
+_I6 = 1.0 / 6.0
+_I24 = 1.0 / 24.0
+_I120 = 1.0 / 120.0
+_M720 = -1.0 / 720.0
+_I5040 = 1.0 / 5040.0
+
+
+def trajectory_columns(n: int) -> list[str]:
+    """Column names of a logged trajectory (the `trajectory.parquet` contract)."""
+    j = range(1, n + 1)
+    return (
+        ["t"]
+        + [f"q_{i}" for i in j]
+        + [f"q_d_{i}" for i in j]
+        + [f"dq_{i}" for i in j]
+        + [f"dq_d_{i}" for i in j]
+        + [f"tau_{i}" for i in j]
+        + ["rho_hat", "tip_x", "tip_y"]
+    )
+
+
+# --- work buffer -------------------------------------------------------------------------------
+# One flat float64 array (a single argument keeps the dispatch from Python cheap):
+#   [0] n, [1] cap (cached F rows), τ of the last step (n), the link slots (φ₀ | cos | sin, n each),
+#   the τ_d slots (φ₀ | cos | sin, n each), the F-row slots (φ₀ | cos | sin, cap each), the F-row
+#   series amp·cos⁽ᵏ⁾(φ₀)/k! (8 per row), then scratch (2n² + 24n).
+
+
+@njit(cache=True)
+def _offsets(n: int, cap: int) -> tuple[int, int, int, int, int, int]:
+    """Start of τ, link slots, τ_d slots, F-row slots, F-row series, scratch."""
+    tau = 2
+    links = tau + n
+    dist = links + 3 * n
+    terms = dist + 3 * n
+    series = terms + 3 * cap
+    scratch = series + 8 * cap
+    return tau, links, dist, terms, series, scratch
+
+
+@njit(cache=True)
+def make_work(n: int, max_terms: int = MAX_TERMS) -> Array:
+    """Scratch and angle cache for one closed loop, reused every step so the loop never allocates.
+
+    ``max_terms`` F-term rows get cached angles; further rows are evaluated by libm.
+    """
+    scratch = _offsets(n, max_terms)[5]
+    work = np.zeros(scratch + 2 * n * n + 24 * n)
+    work[0] = n
+    work[1] = max_terms
+    clear_cache(work)
+    return work
+
+
+@njit(cache=True)
+def clear_cache(work: Array) -> None:
+    """Forget every cached angle: the next step evaluates all its slots by libm."""
+    n = int(work[0])
+    cap = int(work[1])
+    _, links, dist, terms, _, _ = _offsets(n, cap)
+    for a in range(n):
+        work[links + a] = np.nan
+        work[dist + a] = np.nan
+    for r in range(cap):
+        work[terms + r] = np.nan
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _series(c: float, s: float, d: float) -> tuple[float, float]:
+    """(cos, sin)(φ₀ + d) from (cos, sin)(φ₀) by the degree-7 Taylor series in d (Estrin form).
+
+    The truncation error is below 2.2e-17 for |d| ≤ ROTATE_MAX.
+    """
+    d2 = d * d
+    d4 = d2 * d2
+    cl = (c - s * d) + d2 * (_M2 * c + (_I6 * s) * d)
+    ch = (_I24 * c - (_I120 * s) * d) + d2 * (_M720 * c + (_I5040 * s) * d)
+    sl = (s + c * d) + d2 * (_M2 * s - (_I6 * c) * d)
+    sh = (_I24 * s + (_I120 * c) * d) + d2 * (_M720 * s - (_I5040 * c) * d)
+    return cl + d4 * ch, sl + d4 * sh
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _turn(phi: float, phi0: float, c0: float, s0: float) -> tuple[float, float]:
+    """(cos φ, sin φ) from the cached φ₀, or by libm when φ is far from it (or φ₀ is NaN)."""
+    d = phi - phi0
+    if abs(d) <= ROTATE_MAX:
+        return _series(c0, s0, d)
+    return math.cos(phi), math.sin(phi)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _turn_by(d: float, phi: float, c0: float, s0: float) -> tuple[float, float]:
+    """(cos φ, sin φ) for φ = φ₀ + d, given d directly (an RK4 stage's offset from the base)."""
+    if abs(d) <= ROTATE_MAX:
+        return _series(c0, s0, d)
+    return math.cos(phi), math.sin(phi)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _poly7(p: Array, b: int, d: float) -> float:
+    """Σ_k p[b + k] d^k for k = 0..7 (Estrin form: short dependency chains)."""
+    d2 = d * d
+    d4 = d2 * d2
+    lo = (p[b] + p[b + 1] * d) + d2 * (p[b + 2] + p[b + 3] * d)
+    hi = (p[b + 4] + p[b + 5] * d) + d2 * (p[b + 6] + p[b + 7] * d)
+    return lo + d4 * hi
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _base_terms(
+    state: Array, n: int, t: float, anchor: bool, f_terms: Array, dist: Array, work: Array
+) -> None:
+    """Move the F-row and τ_d slots to the step's start (state, t); refresh the F series."""
+    cap = int(work[1])
+    _, _, db, fb, sb, _ = _offsets(n, cap)
+    for r in range(min(f_terms.shape[0], cap)):
+        src = int(f_terms[r, 4])
+        x = state[src] if int(f_terms[r, 3]) == SOURCE_Q else state[n + src]
+        phi = f_terms[r, 2] * x
+        if anchor:
+            c = math.cos(phi)
+            s = math.sin(phi)
+        else:
+            c, s = _turn(phi, work[fb + r], work[fb + cap + r], work[fb + 2 * cap + r])
+        work[fb + r] = phi
+        work[fb + cap + r] = c
+        work[fb + 2 * cap + r] = s
+        amp = f_terms[r, 1]
+        ac = amp * c
+        sa = amp * s
+        o = sb + 8 * r
+        work[o] = ac
+        work[o + 1] = -sa
+        work[o + 2] = _M2 * ac
+        work[o + 3] = _I6 * sa
+        work[o + 4] = _I24 * ac
+        work[o + 5] = -_I120 * sa
+        work[o + 6] = _M720 * ac
+        work[o + 7] = _I5040 * sa
+    for i in range(n):
+        if dist[0, i] != 0.0:
+            phi = dist[1, i] * t
+            if anchor:
+                c = math.cos(phi)
+                s = math.sin(phi)
+            else:
+                c, s = _turn(phi, work[db + i], work[db + n + i], work[db + 2 * n + i])
+            work[db + i] = phi
+            work[db + n + i] = c
+            work[db + 2 * n + i] = s
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _disturbance(
+    n: int, key: np.uint64, k: int, dist: Array, rot: Array, work: Array, ext: Array
+) -> None:
+    """τ_d of step k at its start, half step and end into ext[0:n], ext[n:2n], ext[2n:3n].
+
+    ``rot`` holds cos, sin of freq·dt/2 and of freq·dt per joint (rows 0–3).
+    """
+    db = _offsets(n, int(work[1]))[2]
+    for i in range(n):
+        noise = dist[2, i] * uniform(key, k, i, n)
+        amp = dist[0, i]
+        if amp != 0.0:
+            c = work[db + n + i]
+            s = work[db + 2 * n + i]
+            ext[i] = amp * c + noise
+            ext[n + i] = amp * (c * rot[0, i] - s * rot[1, i]) + noise
+            ext[2 * n + i] = amp * (c * rot[2, i] - s * rot[3, i]) + noise
+        else:
+            ext[i] = noise
+            ext[n + i] = noise
+            ext[2 * n + i] = noise
+
+
+@njit(cache=True)
+def _rotations(dist: Array, dt: float, rot: Array) -> None:
+    for i in range(dist.shape[1]):
+        w = dist[1, i] * dt
+        rot[0, i] = math.cos(0.5 * w)
+        rot[1, i] = math.sin(0.5 * w)
+        rot[2, i] = math.cos(w)
+        rot[3, i] = math.sin(w)
+
+
+@njit(cache=True)
+def _log_row(row: Array, t: float, state: Array, dqd: Array, n: int, lengths: Array) -> None:
+    row[0] = t
+    for i in range(n):
+        row[1 + i] = state[i]
+        row[1 + n + i] = state[2 * n + i]
+        row[1 + 2 * n + i] = state[n + i]
+        row[1 + 3 * n + i] = dqd[i]
+    row[1 + 5 * n] = state[4 * n]
+    x, y = tip_position(state[0:n], lengths)
+    row[2 + 5 * n] = x
+    row[3 + 5 * n] = y
+
+
+@njit(cache=True)
+def _diverged(state: Array, n: int) -> bool:
+    for i in range(2 * n):
+        x = state[i]
+        if not np.isfinite(x):
+            return True
+    for i in range(n, 2 * n):
+        if abs(state[i]) > DIVERGENCE_SPEED:
+            return True
+    return not np.isfinite(state[4 * n])
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _solve_two(
+    c0: float,
+    s0: float,
+    c1: float,
+    s1: float,
+    tau0: float,
+    tau1: float,
+    w00: float,
+    w01: float,
+    w11: float,
+    g0: float,
+    g1: float,
+) -> tuple[float, float, float, float, float, float, float, float]:
+    """M⁻¹(τ − C q̇ − G) for n = 2 as K + A ω₀² + B ω₁² (ω = θ̇), plus M's two distinct entries.
+
+    With c₁₂ = cos(θ₀ − θ₁), M = [[W₀₀ + W₁₁ + 2W₀₁c₁₂, W₁₁ + W₀₁c₁₂], [·, W₁₁]] and
+    det M = W₀₀W₁₁ − (W₀₁c₁₂)²; the bias is linear in ω², so the part of the solve that waits for
+    the stage velocity is two multiply-adds.
+    """
+    c12 = c0 * c1 + s0 * s1
+    s12 = s0 * c1 - c0 * s1
+    wc = w01 * c12
+    m00 = (w00 + w11) + 2.0 * wc
+    m01 = w11 + wc
+    inv = 1.0 / (w00 * w11 - wc * wc)
+    gc1 = g1 * c1
+    r0 = tau0 - (g0 * c0 + gc1)
+    r1 = tau1 - gc1
+    k0 = (w11 * r0 - m01 * r1) * inv
+    k1 = (m00 * r1 - m01 * r0) * inv
+    wsi = (w01 * s12) * inv
+    return k0, k1, -wsi * wc, -wsi * w11, wsi * (w00 + wc), wsi * m01, m00, m01
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, _nrt=False)
+def _run_two(
+    state: Array,
+    commands: Array,
+    hold: int,
+    k0: int,
+    kind: int,
+    gains: Array,
+    model: Model,
+    dt: float,
+    key: np.uint64,
+    work: Array,
+    log: Array,
+    trace: Array,
+) -> tuple[int, bool]:
+    """`_run` for n = 2, unrolled: the whole RK4 step lives in scalars."""
+    n = 2
+    weights, gcoef, lengths, f_terms, dist, tau_limit = model
+    cap = int(work[1])
+    tb, lb, _, fb, sb, scr = _offsets(n, cap)
+    tau = work[tb : tb + n]
+    mass = work[scr : scr + 4].reshape((2, 2))
+    e1 = work[scr + 4 : scr + 6]
+    y2 = work[scr + 6 : scr + 8]
+    ext = work[scr + 8 : scr + 14]
+    rot = work[scr + 14 : scr + 22].reshape((4, 2))
+    _rotations(dist, dt, rot)
+    w00 = weights[0, 0]
+    w01 = weights[0, 1]
+    w11 = weights[1, 1]
+    g0 = gcoef[0]
+    g1 = gcoef[1]
+    n_rows = f_terms.shape[0]
+    h = dt
+    hh = 0.5 * dt
+    h6 = dt / 6.0
+    record = log.shape[0] > 0
+    tracing = trace.shape[0] > 0
+    steps = 0
+    for ci in range(commands.shape[0]):
+        dqd = commands[ci]
+        for _ in range(hold):
+            k = k0 + steps
+            t = k * dt
+            if record:
+                _log_row(log[steps], t, state, dqd, n, lengths)
+            if tracing:
+                trace[steps, 0] = state[0] - state[4]
+                trace[steps, 1] = state[1] - state[5]
+            q0 = state[0]
+            q1 = state[1]
+            v0 = state[2]
+            v1 = state[3]
+            # Slots at the step's start: θ₀ = q₀, θ₁ = q₀ + q₁, the F rows, τ_d.
+            anchor = (k & _ANCHOR_MASK) == 0
+            th1 = q0 + q1
+            if anchor:
+                bc0 = math.cos(q0)
+                bs0 = math.sin(q0)
+                bc1 = math.cos(th1)
+                bs1 = math.sin(th1)
+            else:
+                bc0, bs0 = _turn(q0, work[lb], work[lb + 2], work[lb + 4])
+                bc1, bs1 = _turn(th1, work[lb + 1], work[lb + 3], work[lb + 5])
+            work[lb] = q0
+            work[lb + 1] = th1
+            work[lb + 2] = bc0
+            work[lb + 3] = bc1
+            work[lb + 4] = bs0
+            work[lb + 5] = bs1
+            _base_terms(state, n, t, anchor, f_terms, dist, work)
+            _disturbance(n, key, k, dist, rot, work, ext)
+            # M(q) at the step's start, shared by the controller and RK4 stage 1.
+            c12 = bc0 * bc1 + bs0 * bs1
+            wc = w01 * c12
+            mass[0, 0] = (w00 + w11) + 2.0 * wc
+            mass[0, 1] = w11 + wc
+            mass[1, 0] = w11 + wc
+            mass[1, 1] = w11
+            rho_dot = control(kind, gains, state, dqd, mass, tau_limit, tau, e1, y2)
+            tau0 = tau[0]
+            tau1 = tau[1]
+            kk0, kk1, p0, r0, p1, r1, _, _ = _solve_two(
+                bc0, bs0, bc1, bs1, tau0, tau1, w00, w01, w11, g0, g1
+            )
+            fq0 = 0.0
+            fq1 = 0.0
+            for r in range(n_rows):
+                if r < cap:
+                    val = work[sb + 8 * r]
+                else:
+                    src = int(f_terms[r, 4])
+                    x = state[src] if int(f_terms[r, 3]) == SOURCE_Q else state[n + src]
+                    val = f_terms[r, 1] * math.cos(f_terms[r, 2] * x)
+                if int(f_terms[r, 0]) == 0:
+                    fq0 += val
+                else:
+                    fq1 += val
+            ww0 = v0 * v0
+            ww1 = (v0 + v1) * (v0 + v1)
+            a0 = (kk0 + (fq0 + ext[0])) + p0 * ww0 + r0 * ww1
+            a1 = (kk1 + (fq1 + ext[1])) + p1 * ww0 + r1 * ww1
+            sv0 = v0
+            sv1 = v1
+            sa0 = a0
+            sa1 = a1
+            kv0 = v0
+            kv1 = v1
+            for st in range(3):
+                # Stage offsets from the step's start: each slot turns by freq · offset.
+                fr = hh if st < 2 else h
+                dq0 = fr * kv0
+                dq1 = fr * kv1
+                qs0 = q0 + dq0
+                qs1 = q1 + dq1
+                vs0 = v0 + fr * a0
+                vs1 = v1 + fr * a1
+                c0, s0 = _turn_by(dq0, qs0, bc0, bs0)
+                c1, s1 = _turn_by(dq0 + dq1, qs0 + qs1, bc1, bs1)
+                kk0, kk1, p0, r0, p1, r1, _, _ = _solve_two(
+                    c0, s0, c1, s1, tau0, tau1, w00, w01, w11, g0, g1
+                )
+                fq0 = 0.0
+                fq1 = 0.0
+                fv0 = 0.0
+                fv1 = 0.0
+                for r in range(n_rows):
+                    src = int(f_terms[r, 4])
+                    on_q = int(f_terms[r, 3]) == SOURCE_Q
+                    freq = f_terms[r, 2]
+                    if on_q:
+                        d = (freq * fr) * (kv0 if src == 0 else kv1)
+                        x = qs0 if src == 0 else qs1
+                    else:
+                        d = (freq * fr) * (a0 if src == 0 else a1)
+                        x = vs0 if src == 0 else vs1
+                    if r < cap and abs(d) <= ROTATE_MAX:
+                        val = _poly7(work, sb + 8 * r, d)
+                    else:
+                        val = f_terms[r, 1] * math.cos(freq * x)
+                    if int(f_terms[r, 0]) == 0:
+                        if on_q:
+                            fq0 += val
+                        else:
+                            fv0 += val
+                    elif on_q:
+                        fq1 += val
+                    else:
+                        fv1 += val
+                e = 2 if st < 2 else 4
+                ww0 = vs0 * vs0
+                ww1 = (vs0 + vs1) * (vs0 + vs1)
+                a0 = ((kk0 + (fq0 + ext[e])) + p0 * ww0 + r0 * ww1) + fv0
+                a1 = ((kk1 + (fq1 + ext[e + 1])) + p1 * ww0 + r1 * ww1) + fv1
+                wt = 2.0 if st < 2 else 1.0
+                sv0 += wt * vs0
+                sv1 += wt * vs1
+                sa0 += wt * a0
+                sa1 += wt * a1
+                kv0 = vs0
+                kv1 = vs1
+            q0 += h6 * sv0
+            q1 += h6 * sv1
+            v0 += h6 * sa0
+            v1 += h6 * sa1
+            state[0] = q0
+            state[1] = q1
+            state[2] = v0
+            state[3] = v1
+            state[4] += h * dqd[0]
+            state[5] += h * dqd[1]
+            state[6] += h * e1[0]
+            state[7] += h * e1[1]
+            rho = state[8] + h * rho_dot
+            state[8] = rho
+            if record:
+                log[steps, 9] = tau0
+                log[steps, 10] = tau1
+            steps += 1
+            if not (
+                abs(v0) <= DIVERGENCE_SPEED
+                and abs(v1) <= DIVERGENCE_SPEED
+                and abs(q0) < np.inf
+                and abs(q1) < np.inf
+                and abs(rho) < np.inf
+            ):
+                return steps, True
+    return steps, False
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _stage_terms(xs: Array, n: int, f_terms: Array, work: Array, acc: Array) -> None:
+    """acc += F at the stage state xs = [q, q̇], from the step's cached series (or libm)."""
+    cap = int(work[1])
+    _, _, _, fb, sb, _ = _offsets(n, cap)
+    for r in range(f_terms.shape[0]):
+        src = int(f_terms[r, 4])
+        x = xs[src] if int(f_terms[r, 3]) == SOURCE_Q else xs[n + src]
+        phi = f_terms[r, 2] * x
+        d = phi - work[fb + r] if r < cap else np.inf
+        if abs(d) <= ROTATE_MAX:
+            val = _poly7(work, sb + 8 * r, d)
+        else:
+            val = f_terms[r, 1] * math.cos(phi)
+        acc[int(f_terms[r, 0])] += val
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, _nrt=False)
+def _run_generic(
+    state: Array,
+    commands: Array,
+    hold: int,
+    k0: int,
+    kind: int,
+    gains: Array,
+    model: Model,
+    dt: float,
+    key: np.uint64,
+    work: Array,
+    log: Array,
+    trace: Array,
+) -> tuple[int, bool]:
+    """`_run` for any n: loops over links and a Cholesky solve."""
+    n = state.shape[0] // 4
+    weights, gcoef, lengths, f_terms, dist, tau_limit = model
+    cap = int(work[1])
+    tb, lb, _, _, _, o = _offsets(n, cap)
+    tau = work[tb : tb + n]
+    phi0 = work[lb : lb + n]
+    cth = work[lb + n : lb + 2 * n]
+    sth = work[lb + 2 * n : lb + 3 * n]
+    mass = work[o : o + n * n].reshape((n, n))
+    o += n * n
+    low = work[o : o + n * n].reshape((n, n))
+    o += n * n
+    bias = work[o : o + n]
+    th = work[o + n : o + 2 * n]
+    om = work[o + 2 * n : o + 3 * n]
+    e1 = work[o + 3 * n : o + 4 * n]
+    y2 = work[o + 4 * n : o + 5 * n]
+    rhs = work[o + 5 * n : o + 6 * n]
+    acc = work[o + 6 * n : o + 7 * n]
+    xs = work[o + 7 * n : o + 9 * n]
+    kv = work[o + 9 * n : o + 10 * n]
+    sv = work[o + 10 * n : o + 11 * n]
+    sa = work[o + 11 * n : o + 12 * n]
+    sc = work[o + 12 * n : o + 13 * n]
+    ss = work[o + 13 * n : o + 14 * n]
+    ext = work[o + 14 * n : o + 17 * n]
+    rot = work[o + 17 * n : o + 21 * n].reshape((4, n))
+    _rotations(dist, dt, rot)
+    h = dt
+    record = log.shape[0] > 0
+    tracing = trace.shape[0] > 0
+    steps = 0
+    for ci in range(commands.shape[0]):
+        dqd = commands[ci]
+        for _ in range(hold):
+            k = k0 + steps
+            t = k * dt
+            if record:
+                _log_row(log[steps], t, state, dqd, n, lengths)
+            if tracing:
+                for i in range(n):
+                    trace[steps, i] = state[i] - state[2 * n + i]
+            anchor = (k & _ANCHOR_MASK) == 0
+            q = state[0:n]
+            v = state[n : 2 * n]
+            absolute_angles(q, v, th, om)
+            for a in range(n):
+                if anchor:
+                    c = math.cos(th[a])
+                    s = math.sin(th[a])
+                else:
+                    c, s = _turn(th[a], phi0[a], cth[a], sth[a])
+                phi0[a] = th[a]
+                cth[a] = c
+                sth[a] = s
+            _base_terms(state, n, t, anchor, f_terms, dist, work)
+            _disturbance(n, key, k, dist, rot, work, ext)
+            mass_and_bias_cs(cth, sth, om, weights, gcoef, mass, bias)
+            rho_dot = control(kind, gains, state, dqd, mass, tau_limit, tau, e1, y2)
+            for i in range(n):
+                rhs[i] = tau[i] - bias[i]
+                xs[i] = q[i]
+                xs[n + i] = v[i]
+            cholesky_solve(mass, rhs, low, acc)
+            _stage_terms(xs, n, f_terms, work, acc)
+            for i in range(n):
+                acc[i] += ext[i]
+                sv[i] = v[i]
+                sa[i] = acc[i]
+                kv[i] = v[i]
+            for st in range(3):
+                fr = 0.5 * h if st < 2 else h
+                for i in range(n):
+                    xs[i] = q[i] + fr * kv[i]
+                    xs[n + i] = v[i] + fr * acc[i]
+                absolute_angles(xs[0:n], xs[n : 2 * n], th, om)
+                for a in range(n):
+                    sc[a], ss[a] = _turn(th[a], phi0[a], cth[a], sth[a])
+                mass_and_bias_cs(sc, ss, om, weights, gcoef, mass, bias)
+                for i in range(n):
+                    rhs[i] = tau[i] - bias[i]
+                cholesky_solve(mass, rhs, low, acc)
+                _stage_terms(xs, n, f_terms, work, acc)
+                e = n if st < 2 else 2 * n
+                wt = 2.0 if st < 2 else 1.0
+                for i in range(n):
+                    acc[i] += ext[e + i]
+                    sv[i] += wt * xs[n + i]
+                    sa[i] += wt * acc[i]
+                    kv[i] = xs[n + i]
+            for i in range(n):
+                state[i] += h / 6.0 * sv[i]
+                state[n + i] += h / 6.0 * sa[i]
+                state[2 * n + i] += h * dqd[i]
+                state[3 * n + i] += h * e1[i]
+            state[4 * n] += h * rho_dot
+            if record:
+                for i in range(n):
+                    log[steps, 1 + 4 * n + i] = tau[i]
+            steps += 1
+            if _diverged(state, n):
+                return steps, True
+    return steps, False
+
+
+@njit(cache=True)
+def _run(
+    state: Array,
+    commands: Array,
+    hold: int,
+    k0: int,
+    kind: int,
+    gains: Array,
+    model: Model,
+    dt: float,
+    key: np.uint64,
+    work: Array,
+    log: Array,
+    trace: Array,
+) -> tuple[int, bool]:
+    """Run ``hold`` steps of each q̇_d row of ``commands`` from step index ``k0``.
+
+    Row s of ``log`` (when it has rows) gets the logged quantities of the s-th step, row s of
+    ``trace`` (when it has rows) gets e1 at that step's start. Returns (steps run, diverged);
+    a diverging step is run and counted, and ends the call.
+    """
+    if commands.shape[1] == 2:
+        return _run_two(state, commands, hold, k0, kind, gains, model, dt, key, work, log, trace)
+    return _run_generic(state, commands, hold, k0, kind, gains, model, dt, key, work, log, trace)
+
+
+@njit(cache=True)
+def step(
+    state: Array,
+    dqd: Array,
+    k: int,
+    kind: int,
+    gains: Array,
+    model: Model,
+    dt: float,
+    key: np.uint64,
+    work: Array,
+) -> None:
+    """Advance the closed loop by one controller period (see the module docstring)."""
+    n = dqd.shape[0]
+    _run(
+        state, dqd.reshape((1, n)), 1, k, kind, gains, model, dt, key, work,
+        np.empty((0, 4 + 5 * n)), np.empty((0, n)),
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def advance(
+    state: Array,
+    dqd: Array,
+    k0: int,
+    n_steps: int,
+    kind: int,
+    gains: Array,
+    model: Model,
+    dt: float,
+    key: np.uint64,
+    work: Array,
+    log: Array,
+) -> int:
+    """Run ``n_steps`` controller steps from step index ``k0`` holding q̇_d = ``dqd``.
+
+    Returns the number of steps completed: ``n_steps`` unless the loop diverged. When ``log`` has
+    rows, row s receives (t, q, q_d, q̇, q̇_d, τ, ρ̂, tip) at the start of step s, with the τ
+    applied during that step. ``key`` is `stream_key`'s value as an ``np.uint64`` (a Python int
+    above 2⁶³ makes every call go through numba's slow type resolution).
+    """
+    n = dqd.shape[0]
+    done, diverged = _run(
+        state, dqd.reshape((1, n)), n_steps, k0, kind, gains, model, dt, key, work, log,
+        np.empty((0, n)),
+    )  # fmt: skip
+    return done - 1 if diverged else n_steps
+
+
+@njit(cache=True, parallel=True)
+def simulate_batch(
+    kind: int,
+    gains: Array,
+    q0: Array,
+    offset: Array,
+    commands: Array,
+    steps_per_command: int,
+    model: Model,
+    dt: float,
+    seeds: Array,
+    err: Array,
+) -> Array:
+    """Closed-loop runs of every gain candidate on every reference scenario, in parallel.
+
+    gains (K, p); per scenario s: q_d(0) = q0[s], q(0) = q0[s] + offset[s], q̇(0) = 0, and q̇_d
+    steps through commands[s] (C, n), each held ``steps_per_command`` periods. Fills
+    err[K, S, C·steps_per_command, n] with e1 = q − q_d at the start of every step (NaN after a
+    divergence) and returns the number of steps each run completed, shape (K, S).
+    """
+    n_cand = gains.shape[0]
+    n_scen = q0.shape[0]
+    n = q0.shape[1]
+    total = commands.shape[1] * steps_per_command
+    done = np.empty((n_cand, n_scen), dtype=np.int64)
+    for idx in prange(n_cand * n_scen):
+        c = idx // n_scen
+        s = idx % n_scen
+        work = make_work(n)
+        state = np.zeros(4 * n + 1)
+        for i in range(n):
+            state[i] = q0[s, i] + offset[s, i]
+            state[2 * n + i] = q0[s, i]
+        key = stream_key(int(seeds[s]))
+        completed, _ = _run(
+            state, commands[s], steps_per_command, 0, kind, gains[c], model, dt, key, work,
+            np.empty((0, 4 + 5 * n)), err[c, s],
+        )  # fmt: skip
+        for kk in range(completed, total):
+            for i in range(n):
+                err[c, s, kk, i] = np.nan
+        done[c, s] = completed
+    return done
+
+
+class Simulator:
+    """One closed loop (plant + controller) with its state, for stages and environments.
+
+    >>> sim = Simulator(plant, "subsystem_adaptive", gains, q0=[0.0, 0.0], seed=0)
+    >>> sim.advance([0.1, -0.2], 30)   # one 30 ms environment step
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        controller: str,
+        gains: Array,
+        q0: Array | list[float],
+        seed: int = 0,
+        qd0: Array | list[float] | None = None,
+    ) -> None:
+        if controller not in KINDS:
+            raise ValueError(f"controller={controller!r} is unknown; choose one of {list(KINDS)}.")
+        self.plant = plant
+        self.kind = KINDS[controller]
+        self.gains = np.ascontiguousarray(gains, dtype=np.float64)
+        self.n = plant.arm.n
+        self._model = plant.packed()
+        self._work = make_work(self.n)
+        self._no_log = np.zeros((0, 4 + 5 * self.n))
+        self.state = np.zeros(4 * self.n + 1)
+        self.reset(q0, seed=seed, qd0=qd0)
+
+    def reset(
+        self, q0: Array | list[float], seed: int = 0, qd0: Array | list[float] | None = None
+    ) -> None:
+        """Put the arm at rest at ``q0`` with q_d(0) = ``qd0`` (default q0), ρ̂ = 0, t = 0."""
+        n = self.n
+        self.state[:] = 0.0
+        self.state[:n] = q0
+        self.state[2 * n : 3 * n] = q0 if qd0 is None else qd0
+        self.step_index = 0
+        self.seed = int(seed)
+        self._key = np.uint64(stream_key(self.seed))
+        self._work[2 : 2 + n] = 0.0
+        clear_cache(self._work)
+        self.diverged = False
+
+    def advance(self, dqd: Array | list[float], n_steps: int, log: bool = False) -> Array | None:
+        """Hold q̇_d for ``n_steps`` controller periods; returns the logged rows when ``log``.
+
+        After a divergence the state is left as it was and `diverged` is set; further calls do
+        nothing (a diverged episode is an outcome, not an exception).
+        """
+        rows = np.zeros((n_steps, 4 + 5 * self.n)) if log else self._no_log
+        if self.diverged:
+            return rows[:0] if log else None
+        cmd = np.ascontiguousarray(dqd, dtype=np.float64)
+        done = advance(
+            self.state,
+            cmd,
+            self.step_index,
+            n_steps,
+            self.kind,
+            self.gains,
+            self._model,
+            self.plant.dt,
+            self._key,
+            self._work,
+            rows,
+        )
+        self.step_index += done
+        if done < n_steps:
+            self.diverged = True
+            self.step_index += 1
+            return rows[: done + 1] if log else None
+        return rows if log else None
+
+    @property
+    def q(self) -> Array:
+        return self.state[: self.n]
+
+    @property
+    def dq(self) -> Array:
+        return self.state[self.n : 2 * self.n]
+
+    @property
+    def q_d(self) -> Array:
+        return self.state[2 * self.n : 3 * self.n]
+
+    @property
+    def rho_hat(self) -> float:
+        return float(self.state[4 * self.n])
+
+    @property
+    def tau(self) -> Array:
+        """Torque applied during the last step."""
+        return self._work[2 : 2 + self.n]
+
+    @property
+    def time(self) -> float:
+        return self.step_index * self.plant.dt
+
+    def tip(self) -> tuple[float, float]:
+        x, y = tip_position(self.q, self._model[2])
+        return float(x), float(y)
