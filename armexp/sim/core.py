@@ -13,17 +13,19 @@ many gain candidates × reference scenarios in parallel for the tuner.
 
 Speed. Every angle the plant takes a cosine or sine of is linear in (q, q̇, t): the absolute link
 angles θ_a, the F-term arguments freq·q_j or freq·q̇_j, and τ_d's freq·t. The work buffer keeps,
-for each of them, the angle φ₀ at the current step's start with cos φ₀ and sin φ₀. Any other
-angle φ of the same slot (an RK4 stage, the next step's start) is reached by the angle-addition
-rotation by δ = φ − φ₀, with cos δ − 1 and sin δ from their Taylor polynomials (degree 8 and 7:
-truncation < 1e-19 for |δ| ≤ `ROTATE_MAX`). libm is called instead when |δ| > `ROTATE_MAX`, and
-for every slot at each step index that is a multiple of `ANCHOR_PERIOD` or when the buffer is
-fresh (``make_work``, ``clear_cache``), so rounding cannot accumulate for more than 64 steps.
-Because φ₀ is stored with its cosine and sine, the result is correct for any state (a reset, an
-edited state, another model): the cache only decides how cos φ is computed. The rule depends on
-the step index and the buffer alone, so one long `advance` and many short ones give bit-identical
-trajectories. The two-link arm has an unrolled path (2×2 solve with one division); other n use
-generic loops and a Cholesky solve.
+for each of these "slots", the angle φ₀ at the current step's start with cos φ₀ and sin φ₀. Any
+other angle φ = φ₀ + δ of the slot (an RK4 stage, the next step's start) comes from the Taylor
+series of cos and sin about φ₀: degree 5 up to |δ| = `ROTATE_SHORT`, degree 7 up to `ROTATE_MAX`
+(truncation < 2.2e-17). libm is called instead when |δ| > `ROTATE_MAX`, and for every slot at
+each step index that is a multiple of `ANCHOR_PERIOD` or when the buffer is fresh (`make_work`,
+`clear_cache`), so rounding cannot accumulate over more than 64 steps. As φ₀ is stored with its
+cosine and sine, the result is right for any state (a reset, an edited state, another model): the
+cache only decides how cos φ is computed. The rule depends on the step index and the buffer
+alone, so one long `advance` and many short ones give bit-identical trajectories.
+
+The two-link arm has an unrolled path (scalars, closed-form 2×2 solve with one division, the bias
+written as K + A ω₀² + B ω₁² so a stage waits for its velocity only through two multiply-adds);
+other n use generic loops and a Cholesky solve. Both use the same angle cache.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import math
 
 import numpy as np
 from numba import njit, prange
+from numpy.typing import NDArray
 
 from armexp.sim.controllers import KINDS, control
 from armexp.sim.dynamics import absolute_angles, cholesky_solve, mass_and_bias_cs, tip_position
@@ -40,16 +43,23 @@ from armexp.sim.noise import stream_key, uniform
 
 #: Above this joint speed (rad/s) a run counts as diverged; no physical arm gets near it.
 DIVERGENCE_SPEED = 1e4
-#: Every slot's cosine and sine are recomputed by libm at step indices that are multiples of this.
+#: Every slot's cosine and sine are recomputed by libm at step indices that are multiples of this
+#: (a power of two).
 ANCHOR_PERIOD = 64
-#: Largest angle step |δ| (rad) taken by rotation rather than libm.
+#: Largest angle step |δ| (rad) taken from the Taylor series rather than libm.
 ROTATE_MAX = 1.0 / 32.0
+#: Up to this |δ| (rad) the series stops at degree 5 (truncation < 5e-18), beyond it at degree 7.
+ROTATE_SHORT = 1.0 / 256.0
 #: F-term rows whose angles the default work buffer caches (rows beyond it use libm).
 MAX_TERMS = 8
 
 Model = tuple[Array, Array, Array, Array, Array, Array]
 
-_FAST = {"contract"}  # FMA contraction only: results move by rounding, never by reassociation.
+# FMA contraction only: results move by rounding, never by reassociation, and NaN/inf checks stay.
+_FAST = {"contract"}
+# The two run loops are compiled with numba's ``_nrt=False``: they allocate nothing, and without
+# it every array view handed to an inlined helper costs an atomic reference-count pair per step
+# (measured: 222 instead of 120 ns per two-link step).
 _ANCHOR_MASK = ANCHOR_PERIOD - 1
 # Taylor coefficients of cos and sin (1/k! with signs folded where used).
 _M2 = -0.5
@@ -58,6 +68,8 @@ _I24 = 1.0 / 24.0
 _I120 = 1.0 / 120.0
 _M720 = -1.0 / 720.0
 _I5040 = 1.0 / 5040.0
+# Columns of a cached F row: φ₀, cos φ₀, sin φ₀, then the series amp·cos(φ₀ + d) = Σ p_k d^k.
+_ROW = 11
 
 
 def trajectory_columns(n: int) -> list[str]:
@@ -76,21 +88,22 @@ def trajectory_columns(n: int) -> list[str]:
 
 # --- work buffer -------------------------------------------------------------------------------
 # One flat float64 array (a single argument keeps the dispatch from Python cheap):
-#   [0] n, [1] cap (cached F rows), τ of the last step (n), the link slots (φ₀ | cos | sin, n each),
-#   the τ_d slots (φ₀ | cos | sin, n each), the F-row slots (φ₀ | cos | sin, cap each), the F-row
-#   series amp·cos⁽ᵏ⁾(φ₀)/k! (8 per row), then scratch (2n² + 24n).
+#   [0] n, [1] cap (cached F rows), τ of the last step (n), the link slots (3 × n: φ₀, cos, sin),
+#   the τ_d slots (3 × n), the F-row slots (cap × 11: φ₀, cos, sin, series), the two-link row
+#   plan (cap × 8), then scratch (2n² + 24n). The compiled code works on 2-D views of the blocks,
+#   indexed from 0, so no index needs numba's negative-index wraparound.
 
 
 @njit(cache=True)
 def _offsets(n: int, cap: int) -> tuple[int, int, int, int, int, int]:
-    """Start of τ, link slots, τ_d slots, F-row slots, F-row series, scratch."""
+    """Start of τ, link slots, τ_d slots, F-row slots, row plan, scratch."""
     tau = 2
     links = tau + n
     dist = links + 3 * n
-    terms = dist + 3 * n
-    series = terms + 3 * cap
-    scratch = series + 8 * cap
-    return tau, links, dist, terms, series, scratch
+    rows = dist + 3 * n
+    plan = rows + _ROW * cap
+    scratch = plan + 8 * cap
+    return tau, links, dist, rows, plan, scratch
 
 
 @njit(cache=True)
@@ -99,8 +112,7 @@ def make_work(n: int, max_terms: int = MAX_TERMS) -> Array:
 
     ``max_terms`` F-term rows get cached angles; further rows are evaluated by libm.
     """
-    scratch = _offsets(n, max_terms)[5]
-    work = np.zeros(scratch + 2 * n * n + 24 * n)
+    work = np.zeros(_offsets(n, max_terms)[5] + 2 * n * n + 24 * n)
     work[0] = n
     work[1] = max_terms
     clear_cache(work)
@@ -112,30 +124,33 @@ def clear_cache(work: Array) -> None:
     """Forget every cached angle: the next step evaluates all its slots by libm."""
     n = int(work[0])
     cap = int(work[1])
-    _, links, dist, terms, _, _ = _offsets(n, cap)
+    _, links, dist, rows, _, _ = _offsets(n, cap)
     for a in range(n):
         work[links + a] = np.nan
         work[dist + a] = np.nan
     for r in range(cap):
-        work[terms + r] = np.nan
+        work[rows + _ROW * r] = np.nan
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _series(c: float, s: float, d: float) -> tuple[float, float]:
-    """(cos, sin)(φ₀ + d) from (cos, sin)(φ₀) by the degree-7 Taylor series in d (Estrin form).
+    """(cos, sin)(φ₀ + d) from (cos, sin)(φ₀) by the Taylor series in d, |d| ≤ ROTATE_MAX.
 
-    The truncation error is below 2.2e-17 for |d| ≤ ROTATE_MAX.
+    Degree 5 for |d| ≤ ROTATE_SHORT, else degree 7 (Estrin form): truncation < 2.2e-17.
     """
     d2 = d * d
-    d4 = d2 * d2
     cl = (c - s * d) + d2 * (_M2 * c + (_I6 * s) * d)
-    ch = (_I24 * c - (_I120 * s) * d) + d2 * (_M720 * c + (_I5040 * s) * d)
     sl = (s + c * d) + d2 * (_M2 * s - (_I6 * c) * d)
-    sh = (_I24 * s + (_I120 * c) * d) + d2 * (_M720 * s - (_I5040 * c) * d)
+    ch = _I24 * c - (_I120 * s) * d
+    sh = _I24 * s + (_I120 * c) * d
+    if abs(d) > ROTATE_SHORT:
+        ch += d2 * (_M720 * c + (_I5040 * s) * d)
+        sh += d2 * (_M720 * s - (_I5040 * c) * d)
+    d4 = d2 * d2
     return cl + d4 * ch, sl + d4 * sh
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _turn(phi: float, phi0: float, c0: float, s0: float) -> tuple[float, float]:
     """(cos φ, sin φ) from the cached φ₀, or by libm when φ is far from it (or φ₀ is NaN)."""
     d = phi - phi0
@@ -144,7 +159,7 @@ def _turn(phi: float, phi0: float, c0: float, s0: float) -> tuple[float, float]:
     return math.cos(phi), math.sin(phi)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _turn_by(d: float, phi: float, c0: float, s0: float) -> tuple[float, float]:
     """(cos φ, sin φ) for φ = φ₀ + d, given d directly (an RK4 stage's offset from the base)."""
     if abs(d) <= ROTATE_MAX:
@@ -152,24 +167,39 @@ def _turn_by(d: float, phi: float, c0: float, s0: float) -> tuple[float, float]:
     return math.cos(phi), math.sin(phi)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
-def _poly7(p: Array, b: int, d: float) -> float:
-    """Σ_k p[b + k] d^k for k = 0..7 (Estrin form: short dependency chains)."""
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _poly7(rows: Array, p: int, d: float) -> float:
+    """Row p's series Σ_k p_k d^k (k ≤ 5 for |d| ≤ ROTATE_SHORT, else k ≤ 7; Estrin form)."""
     d2 = d * d
-    d4 = d2 * d2
-    lo = (p[b] + p[b + 1] * d) + d2 * (p[b + 2] + p[b + 3] * d)
-    hi = (p[b + 4] + p[b + 5] * d) + d2 * (p[b + 6] + p[b + 7] * d)
-    return lo + d4 * hi
+    lo = (rows[p, 3] + rows[p, 4] * d) + d2 * (rows[p, 5] + rows[p, 6] * d)
+    hi = rows[p, 7] + rows[p, 8] * d
+    if abs(d) > ROTATE_SHORT:
+        hi += d2 * (rows[p, 9] + rows[p, 10] * d)
+    return lo + (d2 * d2) * hi
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
-def _base_terms(
-    state: Array, n: int, t: float, anchor: bool, f_terms: Array, dist: Array, work: Array
-) -> None:
-    """Move the F-row and τ_d slots to the step's start (state, t); refresh the F series."""
-    cap = int(work[1])
-    _, _, db, fb, sb, _ = _offsets(n, cap)
-    for r in range(min(f_terms.shape[0], cap)):
+def _store_row(rows: Array, p: int, phi: float, c: float, s: float, amp: float) -> None:
+    """Cache row p's angle at the step's start and its series amp·cos(φ₀ + d) = Σ p_k d^k."""
+    rows[p, 0] = phi
+    rows[p, 1] = c
+    rows[p, 2] = s
+    ac = amp * c
+    sa = amp * s
+    rows[p, 3] = ac
+    rows[p, 4] = -sa
+    rows[p, 5] = _M2 * ac
+    rows[p, 6] = _I6 * sa
+    rows[p, 7] = _I24 * ac
+    rows[p, 8] = -_I120 * sa
+    rows[p, 9] = _M720 * ac
+    rows[p, 10] = _I5040 * sa
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _base_rows(state: Array, n: int, anchor: bool, f_terms: Array, rows: Array) -> None:
+    """Move the cached F-row slots (row r in slot r) to the step's start."""
+    for r in range(rows.shape[0]):
         src = int(f_terms[r, 4])
         x = state[src] if int(f_terms[r, 3]) == SOURCE_Q else state[n + src]
         phi = f_terms[r, 2] * x
@@ -177,57 +207,46 @@ def _base_terms(
             c = math.cos(phi)
             s = math.sin(phi)
         else:
-            c, s = _turn(phi, work[fb + r], work[fb + cap + r], work[fb + 2 * cap + r])
-        work[fb + r] = phi
-        work[fb + cap + r] = c
-        work[fb + 2 * cap + r] = s
-        amp = f_terms[r, 1]
-        ac = amp * c
-        sa = amp * s
-        o = sb + 8 * r
-        work[o] = ac
-        work[o + 1] = -sa
-        work[o + 2] = _M2 * ac
-        work[o + 3] = _I6 * sa
-        work[o + 4] = _I24 * ac
-        work[o + 5] = -_I120 * sa
-        work[o + 6] = _M720 * ac
-        work[o + 7] = _I5040 * sa
-    for i in range(n):
+            c, s = _turn(phi, rows[r, 0], rows[r, 1], rows[r, 2])
+        _store_row(rows, r, phi, c, s, f_terms[r, 1])
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _base_dist(t: float, anchor: bool, dist: Array, slots: Array) -> None:
+    """Move the τ_d slots (3 × n: φ₀, cos, sin) to the step's start."""
+    for i in range(slots.shape[1]):
         if dist[0, i] != 0.0:
             phi = dist[1, i] * t
             if anchor:
                 c = math.cos(phi)
                 s = math.sin(phi)
             else:
-                c, s = _turn(phi, work[db + i], work[db + n + i], work[db + 2 * n + i])
-            work[db + i] = phi
-            work[db + n + i] = c
-            work[db + 2 * n + i] = s
+                c, s = _turn(phi, slots[0, i], slots[1, i], slots[2, i])
+            slots[0, i] = phi
+            slots[1, i] = c
+            slots[2, i] = s
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
-def _disturbance(
-    n: int, key: np.uint64, k: int, dist: Array, rot: Array, work: Array, ext: Array
-) -> None:
-    """τ_d of step k at its start, half step and end into ext[0:n], ext[n:2n], ext[2n:3n].
+def _disturbance(key: np.uint64, k: int, dist: Array, rot: Array, slots: Array, ext: Array) -> None:
+    """τ_d of step k at its start, half step and end into ext rows 0, 1, 2 (3 × n).
 
     ``rot`` holds cos, sin of freq·dt/2 and of freq·dt per joint (rows 0–3).
     """
-    db = _offsets(n, int(work[1]))[2]
+    n = slots.shape[1]
     for i in range(n):
-        noise = dist[2, i] * uniform(key, k, i, n)
+        noise = dist[2, i] * uniform(key, k, i, n) if dist[2, i] != 0.0 else 0.0
         amp = dist[0, i]
         if amp != 0.0:
-            c = work[db + n + i]
-            s = work[db + 2 * n + i]
-            ext[i] = amp * c + noise
-            ext[n + i] = amp * (c * rot[0, i] - s * rot[1, i]) + noise
-            ext[2 * n + i] = amp * (c * rot[2, i] - s * rot[3, i]) + noise
+            c = slots[1, i]
+            s = slots[2, i]
+            ext[0, i] = amp * c + noise
+            ext[1, i] = amp * (c * rot[0, i] - s * rot[1, i]) + noise
+            ext[2, i] = amp * (c * rot[2, i] - s * rot[3, i]) + noise
         else:
-            ext[i] = noise
-            ext[n + i] = noise
-            ext[2 * n + i] = noise
+            ext[0, i] = noise
+            ext[1, i] = noise
+            ext[2, i] = noise
 
 
 @njit(cache=True)
@@ -266,7 +285,10 @@ def _diverged(state: Array, n: int) -> bool:
     return not np.isfinite(state[4 * n])
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+# --- two-link path -----------------------------------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _solve_two(
     c0: float,
     s0: float,
@@ -279,12 +301,12 @@ def _solve_two(
     w11: float,
     g0: float,
     g1: float,
-) -> tuple[float, float, float, float, float, float, float, float]:
-    """M⁻¹(τ − C q̇ − G) for n = 2 as K + A ω₀² + B ω₁² (ω = θ̇), plus M's two distinct entries.
+) -> tuple[float, float, float, float, float, float]:
+    """M⁻¹(τ − C q̇ − G) for n = 2 as K + A ω₀² + B ω₁² (ω = θ̇): returns K0, K1, A0, B0, A1, B1.
 
     With c₁₂ = cos(θ₀ − θ₁), M = [[W₀₀ + W₁₁ + 2W₀₁c₁₂, W₁₁ + W₀₁c₁₂], [·, W₁₁]] and
-    det M = W₀₀W₁₁ − (W₀₁c₁₂)²; the bias is linear in ω², so the part of the solve that waits for
-    the stage velocity is two multiply-adds.
+    det M = W₀₀W₁₁ − (W₀₁c₁₂)²; the bias C q̇ = Aᵀ h_θ is linear in ω², so the part of the solve
+    that waits for the stage velocity is two multiply-adds.
     """
     c12 = c0 * c1 + s0 * s1
     s12 = s0 * c1 - c0 * s1
@@ -298,10 +320,161 @@ def _solve_two(
     k0 = (w11 * r0 - m01 * r1) * inv
     k1 = (m00 * r1 - m01 * r0) * inv
     wsi = (w01 * s12) * inv
-    return k0, k1, -wsi * wc, -wsi * w11, wsi * (w00 + wc), wsi * m01, m00, m01
+    return k0, k1, -wsi * wc, -wsi * w11, wsi * (w00 + wc), wsi * m01
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST, _nrt=False)
+@njit(cache=True)
+def _plan_two(f_terms: Array, plan: Array, m: int) -> int:
+    """Fill the two-link F-row plan for the first m rows; returns how many depend on q.
+
+    Plan row p (cache slot p) is [u_q0, u_q1, u_v0, u_v1, j0, j1, row, amp], with the row's angle
+    φ = u · (q, q̇) (one entry of u is the frequency, the others 0) and j its 0/1 joint mask. Rows
+    on q come first; the rows on q̇, which wait for the latest stage acceleration, last.
+    """
+    p = 0
+    m_q = 0
+    for on_q in (True, False):
+        for r in range(m):
+            if (int(f_terms[r, 3]) == SOURCE_Q) != on_q:
+                continue
+            for j in range(6):
+                plan[p, j] = 0.0
+            src = int(f_terms[r, 4])
+            plan[p, src if on_q else 2 + src] = f_terms[r, 2]
+            plan[p, 4 + int(f_terms[r, 0])] = 1.0
+            plan[p, 6] = r
+            plan[p, 7] = f_terms[r, 1]
+            p += 1
+        if on_q:
+            m_q = p
+    return m_q
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _base_rows_two(
+    q0: float, q1: float, v0: float, v1: float, anchor: bool, plan: Array, rows: Array
+) -> tuple[float, float]:
+    """Move the two-link F-row slots to the step's start; returns F there."""
+    f0 = 0.0
+    f1 = 0.0
+    for p in range(plan.shape[0]):
+        phi = (plan[p, 0] * q0 + plan[p, 1] * q1) + (plan[p, 2] * v0 + plan[p, 3] * v1)
+        if anchor:
+            c = math.cos(phi)
+            s = math.sin(phi)
+        else:
+            c, s = _turn(phi, rows[p, 0], rows[p, 1], rows[p, 2])
+        amp = plan[p, 7]
+        _store_row(rows, p, phi, c, s, amp)
+        f0 += plan[p, 4] * (amp * c)
+        f1 += plan[p, 5] * (amp * c)
+    return f0, f1
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _stage_rows_two(
+    fr: float,
+    kv0: float,
+    kv1: float,
+    ka0: float,
+    ka1: float,
+    qs0: float,
+    qs1: float,
+    vs0: float,
+    vs1: float,
+    plan: Array,
+    rows: Array,
+) -> tuple[float, float]:
+    """F of the given plan rows at an RK4 stage, from the step's series (or libm)."""
+    f0 = 0.0
+    f1 = 0.0
+    for p in range(plan.shape[0]):
+        d = ((fr * plan[p, 0]) * kv0 + (fr * plan[p, 1]) * kv1) + (
+            (fr * plan[p, 3]) * ka1 + (fr * plan[p, 2]) * ka0
+        )
+        if abs(d) <= ROTATE_MAX:
+            val = _poly7(rows, p, d)
+        else:
+            phi = (plan[p, 0] * qs0 + plan[p, 1] * qs1) + (plan[p, 2] * vs0 + plan[p, 3] * vs1)
+            val = plan[p, 7] * math.cos(phi)
+        f0 += plan[p, 4] * val
+        f1 += plan[p, 5] * val
+    return f0, f1
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _extra_rows(
+    x0: float, x1: float, x2: float, x3: float, f_terms: Array, first: int
+) -> tuple[float, float]:
+    """F of the rows beyond the cache (from ``first`` on) by libm, at (q, q̇) = (x0, x1, x2, x3)."""
+    f0 = 0.0
+    f1 = 0.0
+    for r in range(first, f_terms.shape[0]):
+        src = int(f_terms[r, 4])
+        x = (x0 if src == 0 else x1) if int(f_terms[r, 3]) == SOURCE_Q else x2 if src == 0 else x3
+        val = f_terms[r, 1] * math.cos(f_terms[r, 2] * x)
+        if int(f_terms[r, 0]) == 0:
+            f0 += val
+        else:
+            f1 += val
+    return f0, f1
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _stage_two(
+    fr: float,
+    kv0: float,
+    kv1: float,
+    ka0: float,
+    ka1: float,
+    q0: float,
+    q1: float,
+    v0: float,
+    v1: float,
+    bc0: float,
+    bs0: float,
+    bc1: float,
+    bs1: float,
+    tau0: float,
+    tau1: float,
+    w00: float,
+    w01: float,
+    w11: float,
+    g0: float,
+    g1: float,
+    ext0: float,
+    ext1: float,
+    f_terms: Array,
+    plan_q: Array,
+    rows_q: Array,
+    plan_v: Array,
+    rows_v: Array,
+) -> tuple[float, float, float, float]:
+    """One RK4 stage of the two-link arm at (q + fr·kv, q̇ + fr·ka): (stage q̇, stage q̈)."""
+    dq0 = fr * kv0
+    dq1 = fr * kv1
+    qs0 = q0 + dq0
+    qs1 = q1 + dq1
+    vs0 = v0 + fr * ka0
+    vs1 = v1 + fr * ka1
+    c0, s0 = _turn_by(dq0, qs0, bc0, bs0)
+    c1, s1 = _turn_by(dq0 + dq1, qs0 + qs1, bc1, bs1)
+    k0, k1, p0, r0, p1, r1 = _solve_two(c0, s0, c1, s1, tau0, tau1, w00, w01, w11, g0, g1)
+    fq0, fq1 = _stage_rows_two(fr, kv0, kv1, ka0, ka1, qs0, qs1, vs0, vs1, plan_q, rows_q)
+    m = plan_q.shape[0] + plan_v.shape[0]
+    if f_terms.shape[0] > m:
+        x0, x1 = _extra_rows(qs0, qs1, vs0, vs1, f_terms, m)
+        fq0 += x0
+        fq1 += x1
+    fv0, fv1 = _stage_rows_two(fr, kv0, kv1, ka0, ka1, qs0, qs1, vs0, vs1, plan_v, rows_v)
+    ww0 = vs0 * vs0
+    ww1 = (vs0 + vs1) * (vs0 + vs1)
+    a0 = ((k0 + (fq0 + ext0)) + p0 * ww0 + r0 * ww1) + fv0
+    a1 = ((k1 + (fq1 + ext1)) + p1 * ww0 + r1 * ww1) + fv1
+    return vs0, vs1, a0, a1
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, _nrt=False)  # type: ignore[call-overload]
 def _run_two(
     state: Array,
     commands: Array,
@@ -320,20 +493,32 @@ def _run_two(
     n = 2
     weights, gcoef, lengths, f_terms, dist, tau_limit = model
     cap = int(work[1])
-    tb, lb, _, fb, sb, scr = _offsets(n, cap)
+    tb, lb, db, rb, pb, sb = _offsets(n, cap)
     tau = work[tb : tb + n]
-    mass = work[scr : scr + 4].reshape((2, 2))
-    e1 = work[scr + 4 : scr + 6]
-    y2 = work[scr + 6 : scr + 8]
-    ext = work[scr + 8 : scr + 14]
-    rot = work[scr + 14 : scr + 22].reshape((4, 2))
+    links = work[lb : lb + 3 * n].reshape((3, n))
+    dslots = work[db : db + 3 * n].reshape((3, n))
+    rows = work[rb : rb + _ROW * cap].reshape((cap, _ROW))
+    plan = work[pb : pb + 8 * cap].reshape((cap, 8))
+    mass = work[sb : sb + 4].reshape((2, 2))
+    e1 = work[sb + 4 : sb + 6]
+    y2 = work[sb + 6 : sb + 8]
+    ext = work[sb + 8 : sb + 14].reshape((3, 2))
+    rot = work[sb + 14 : sb + 22].reshape((4, 2))
     _rotations(dist, dt, rot)
+    n_rows = f_terms.shape[0]
+    m = min(n_rows, cap)
+    m_q = _plan_two(f_terms, plan, m)
+    plan_m = plan[:m]
+    rows_m = rows[:m]
+    plan_q = plan[:m_q]
+    rows_q = rows[:m_q]
+    plan_v = plan[m_q:m]
+    rows_v = rows[m_q:m]
     w00 = weights[0, 0]
     w01 = weights[0, 1]
     w11 = weights[1, 1]
     g0 = gcoef[0]
     g1 = gcoef[1]
-    n_rows = f_terms.shape[0]
     h = dt
     hh = 0.5 * dt
     h6 = dt / 6.0
@@ -363,19 +548,23 @@ def _run_two(
                 bc1 = math.cos(th1)
                 bs1 = math.sin(th1)
             else:
-                bc0, bs0 = _turn(q0, work[lb], work[lb + 2], work[lb + 4])
-                bc1, bs1 = _turn(th1, work[lb + 1], work[lb + 3], work[lb + 5])
-            work[lb] = q0
-            work[lb + 1] = th1
-            work[lb + 2] = bc0
-            work[lb + 3] = bc1
-            work[lb + 4] = bs0
-            work[lb + 5] = bs1
-            _base_terms(state, n, t, anchor, f_terms, dist, work)
-            _disturbance(n, key, k, dist, rot, work, ext)
+                bc0, bs0 = _turn(q0, links[0, 0], links[1, 0], links[2, 0])
+                bc1, bs1 = _turn(th1, links[0, 1], links[1, 1], links[2, 1])
+            links[0, 0] = q0
+            links[1, 0] = bc0
+            links[2, 0] = bs0
+            links[0, 1] = th1
+            links[1, 1] = bc1
+            links[2, 1] = bs1
+            fq0, fq1 = _base_rows_two(q0, q1, v0, v1, anchor, plan_m, rows_m)
+            if n_rows > m:
+                x0, x1 = _extra_rows(q0, q1, v0, v1, f_terms, m)
+                fq0 += x0
+                fq1 += x1
+            _base_dist(t, anchor, dist, dslots)
+            _disturbance(key, k, dist, rot, dslots, ext)
             # M(q) at the step's start, shared by the controller and RK4 stage 1.
-            c12 = bc0 * bc1 + bs0 * bs1
-            wc = w01 * c12
+            wc = w01 * (bc0 * bc1 + bs0 * bs1)
             mass[0, 0] = (w00 + w11) + 2.0 * wc
             mass[0, 1] = w11 + wc
             mass[1, 0] = w11 + wc
@@ -383,26 +572,13 @@ def _run_two(
             rho_dot = control(kind, gains, state, dqd, mass, tau_limit, tau, e1, y2)
             tau0 = tau[0]
             tau1 = tau[1]
-            kk0, kk1, p0, r0, p1, r1, _, _ = _solve_two(
+            kk0, kk1, p0, r0, p1, r1 = _solve_two(
                 bc0, bs0, bc1, bs1, tau0, tau1, w00, w01, w11, g0, g1
             )
-            fq0 = 0.0
-            fq1 = 0.0
-            for r in range(n_rows):
-                if r < cap:
-                    val = work[sb + 8 * r]
-                else:
-                    src = int(f_terms[r, 4])
-                    x = state[src] if int(f_terms[r, 3]) == SOURCE_Q else state[n + src]
-                    val = f_terms[r, 1] * math.cos(f_terms[r, 2] * x)
-                if int(f_terms[r, 0]) == 0:
-                    fq0 += val
-                else:
-                    fq1 += val
             ww0 = v0 * v0
             ww1 = (v0 + v1) * (v0 + v1)
-            a0 = (kk0 + (fq0 + ext[0])) + p0 * ww0 + r0 * ww1
-            a1 = (kk1 + (fq1 + ext[1])) + p1 * ww0 + r1 * ww1
+            a0 = (kk0 + (fq0 + ext[0, 0])) + p0 * ww0 + r0 * ww1
+            a1 = (kk1 + (fq1 + ext[0, 1])) + p1 * ww0 + r1 * ww1
             sv0 = v0
             sv1 = v1
             sa0 = a0
@@ -410,58 +586,18 @@ def _run_two(
             kv0 = v0
             kv1 = v1
             for st in range(3):
-                # Stage offsets from the step's start: each slot turns by freq · offset.
                 fr = hh if st < 2 else h
-                dq0 = fr * kv0
-                dq1 = fr * kv1
-                qs0 = q0 + dq0
-                qs1 = q1 + dq1
-                vs0 = v0 + fr * a0
-                vs1 = v1 + fr * a1
-                c0, s0 = _turn_by(dq0, qs0, bc0, bs0)
-                c1, s1 = _turn_by(dq0 + dq1, qs0 + qs1, bc1, bs1)
-                kk0, kk1, p0, r0, p1, r1, _, _ = _solve_two(
-                    c0, s0, c1, s1, tau0, tau1, w00, w01, w11, g0, g1
-                )
-                fq0 = 0.0
-                fq1 = 0.0
-                fv0 = 0.0
-                fv1 = 0.0
-                for r in range(n_rows):
-                    src = int(f_terms[r, 4])
-                    on_q = int(f_terms[r, 3]) == SOURCE_Q
-                    freq = f_terms[r, 2]
-                    if on_q:
-                        d = (freq * fr) * (kv0 if src == 0 else kv1)
-                        x = qs0 if src == 0 else qs1
-                    else:
-                        d = (freq * fr) * (a0 if src == 0 else a1)
-                        x = vs0 if src == 0 else vs1
-                    if r < cap and abs(d) <= ROTATE_MAX:
-                        val = _poly7(work, sb + 8 * r, d)
-                    else:
-                        val = f_terms[r, 1] * math.cos(freq * x)
-                    if int(f_terms[r, 0]) == 0:
-                        if on_q:
-                            fq0 += val
-                        else:
-                            fv0 += val
-                    elif on_q:
-                        fq1 += val
-                    else:
-                        fv1 += val
-                e = 2 if st < 2 else 4
-                ww0 = vs0 * vs0
-                ww1 = (vs0 + vs1) * (vs0 + vs1)
-                a0 = ((kk0 + (fq0 + ext[e])) + p0 * ww0 + r0 * ww1) + fv0
-                a1 = ((kk1 + (fq1 + ext[e + 1])) + p1 * ww0 + r1 * ww1) + fv1
+                e = 1 if st < 2 else 2
+                kv0, kv1, a0, a1 = _stage_two(
+                    fr, kv0, kv1, a0, a1, q0, q1, v0, v1, bc0, bs0, bc1, bs1, tau0, tau1,
+                    w00, w01, w11, g0, g1, ext[e, 0], ext[e, 1], f_terms,
+                    plan_q, rows_q, plan_v, rows_v,
+                )  # fmt: skip
                 wt = 2.0 if st < 2 else 1.0
-                sv0 += wt * vs0
-                sv1 += wt * vs1
+                sv0 += wt * kv0
+                sv1 += wt * kv1
                 sa0 += wt * a0
                 sa1 += wt * a1
-                kv0 = vs0
-                kv1 = vs1
             q0 += h6 * sv0
             q1 += h6 * sv1
             v0 += h6 * sa0
@@ -491,24 +627,23 @@ def _run_two(
     return steps, False
 
 
+# --- generic path ------------------------------------------------------------------------------
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
-def _stage_terms(xs: Array, n: int, f_terms: Array, work: Array, acc: Array) -> None:
+def _stage_terms(xs: Array, n: int, f_terms: Array, rows: Array, acc: Array) -> None:
     """acc += F at the stage state xs = [q, q̇], from the step's cached series (or libm)."""
-    cap = int(work[1])
-    _, _, _, fb, sb, _ = _offsets(n, cap)
+    cap = rows.shape[0]
     for r in range(f_terms.shape[0]):
         src = int(f_terms[r, 4])
         x = xs[src] if int(f_terms[r, 3]) == SOURCE_Q else xs[n + src]
         phi = f_terms[r, 2] * x
-        d = phi - work[fb + r] if r < cap else np.inf
-        if abs(d) <= ROTATE_MAX:
-            val = _poly7(work, sb + 8 * r, d)
-        else:
-            val = f_terms[r, 1] * math.cos(phi)
+        d = phi - rows[r, 0] if r < cap else np.inf
+        val = _poly7(rows, r, d) if abs(d) <= ROTATE_MAX else f_terms[r, 1] * math.cos(phi)
         acc[int(f_terms[r, 0])] += val
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST, _nrt=False)
+@njit(cache=True, error_model="numpy", fastmath=_FAST, _nrt=False)  # type: ignore[call-overload]
 def _run_generic(
     state: Array,
     commands: Array,
@@ -527,11 +662,14 @@ def _run_generic(
     n = state.shape[0] // 4
     weights, gcoef, lengths, f_terms, dist, tau_limit = model
     cap = int(work[1])
-    tb, lb, _, _, _, o = _offsets(n, cap)
+    tb, lb, db, rb, _, o = _offsets(n, cap)
     tau = work[tb : tb + n]
     phi0 = work[lb : lb + n]
     cth = work[lb + n : lb + 2 * n]
     sth = work[lb + 2 * n : lb + 3 * n]
+    dslots = work[db : db + 3 * n].reshape((3, n))
+    rows = work[rb : rb + _ROW * cap].reshape((cap, _ROW))
+    rows_m = rows[: min(f_terms.shape[0], cap)]
     mass = work[o : o + n * n].reshape((n, n))
     o += n * n
     low = work[o : o + n * n].reshape((n, n))
@@ -549,7 +687,7 @@ def _run_generic(
     sa = work[o + 11 * n : o + 12 * n]
     sc = work[o + 12 * n : o + 13 * n]
     ss = work[o + 13 * n : o + 14 * n]
-    ext = work[o + 14 * n : o + 17 * n]
+    ext = work[o + 14 * n : o + 17 * n].reshape((3, n))
     rot = work[o + 17 * n : o + 21 * n].reshape((4, n))
     _rotations(dist, dt, rot)
     h = dt
@@ -579,8 +717,9 @@ def _run_generic(
                 phi0[a] = th[a]
                 cth[a] = c
                 sth[a] = s
-            _base_terms(state, n, t, anchor, f_terms, dist, work)
-            _disturbance(n, key, k, dist, rot, work, ext)
+            _base_rows(state, n, anchor, f_terms, rows_m)
+            _base_dist(t, anchor, dist, dslots)
+            _disturbance(key, k, dist, rot, dslots, ext)
             mass_and_bias_cs(cth, sth, om, weights, gcoef, mass, bias)
             rho_dot = control(kind, gains, state, dqd, mass, tau_limit, tau, e1, y2)
             for i in range(n):
@@ -588,9 +727,9 @@ def _run_generic(
                 xs[i] = q[i]
                 xs[n + i] = v[i]
             cholesky_solve(mass, rhs, low, acc)
-            _stage_terms(xs, n, f_terms, work, acc)
+            _stage_terms(xs, n, f_terms, rows_m, acc)
             for i in range(n):
-                acc[i] += ext[i]
+                acc[i] += ext[0, i]
                 sv[i] = v[i]
                 sa[i] = acc[i]
                 kv[i] = v[i]
@@ -606,11 +745,11 @@ def _run_generic(
                 for i in range(n):
                     rhs[i] = tau[i] - bias[i]
                 cholesky_solve(mass, rhs, low, acc)
-                _stage_terms(xs, n, f_terms, work, acc)
-                e = n if st < 2 else 2 * n
+                _stage_terms(xs, n, f_terms, rows_m, acc)
+                e = 1 if st < 2 else 2
                 wt = 2.0 if st < 2 else 1.0
                 for i in range(n):
-                    acc[i] += ext[e + i]
+                    acc[i] += ext[e, i]
                     sv[i] += wt * xs[n + i]
                     sa[i] += wt * acc[i]
                     kv[i] = xs[n + i]
@@ -669,8 +808,9 @@ def step(
 ) -> None:
     """Advance the closed loop by one controller period (see the module docstring)."""
     n = dqd.shape[0]
+    one = n // n  # a run-time 1: a literal would make numba compile `_run` again
     _run(
-        state, dqd.reshape((1, n)), 1, k, kind, gains, model, dt, key, work,
+        state, dqd.reshape((1, n)), one, k, kind, gains, model, dt, key, work,
         np.empty((0, 4 + 5 * n)), np.empty((0, n)),
     )  # fmt: skip
 
@@ -716,7 +856,7 @@ def simulate_batch(
     dt: float,
     seeds: Array,
     err: Array,
-) -> Array:
+) -> NDArray[np.int64]:
     """Closed-loop runs of every gain candidate on every reference scenario, in parallel.
 
     gains (K, p); per scenario s: q_d(0) = q0[s], q(0) = q0[s] + offset[s], q̇(0) = 0, and q̇_d
@@ -738,8 +878,9 @@ def simulate_batch(
             state[i] = q0[s, i] + offset[s, i]
             state[2 * n + i] = q0[s, i]
         key = stream_key(int(seeds[s]))
+        first = 0 * n  # a run-time zero: a literal 0 would make numba compile `_run` again
         completed, _ = _run(
-            state, commands[s], steps_per_command, 0, kind, gains[c], model, dt, key, work,
+            state, commands[s], steps_per_command, first, kind, gains[c], model, dt, key, work,
             np.empty((0, 4 + 5 * n)), err[c, s],
         )  # fmt: skip
         for kk in range(completed, total):
@@ -787,6 +928,8 @@ class Simulator:
         self.state[2 * n : 3 * n] = q0 if qd0 is None else qd0
         self.step_index = 0
         self.seed = int(seed)
+        # An np.uint64, not the Python int numba returns: a Python int above 2⁶³ sends every
+        # `advance` call through numba's slow type resolution (≈ 370 µs instead of ≈ 2 µs).
         self._key = np.uint64(stream_key(self.seed))
         self._work[2 : 2 + n] = 0.0
         clear_cache(self._work)

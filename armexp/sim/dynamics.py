@@ -47,17 +47,15 @@ def mass_and_bias_cs(
     trigonometric function is evaluated here.
     """
     n = cth.shape[0]
-    # M = Aᵀ M_θ A is a 2-D suffix sum of M_θ = W ∘ cos(θ_a − θ_b).
+    # M = Aᵀ M_θ A is a 2-D suffix sum of M_θ = W ∘ cos(θ_a − θ_b); the two neighbours are added
+    # first so that M comes out exactly symmetric.
     for j in range(n - 1, -1, -1):
         for k in range(n - 1, -1, -1):
             v = weights[j, j] if j == k else weights[j, k] * (cth[j] * cth[k] + sth[j] * sth[k])
-            if j + 1 < n:
-                v += mass[j + 1, k]
-            if k + 1 < n:
-                v += mass[j, k + 1]
-            if j + 1 < n and k + 1 < n:
-                v -= mass[j + 1, k + 1]
-            mass[j, k] = v
+            below = mass[j + 1, k] if j + 1 < n else 0.0
+            right = mass[j, k + 1] if k + 1 < n else 0.0
+            corner = mass[j + 1, k + 1] if j + 1 < n and k + 1 < n else 0.0
+            mass[j, k] = v + (below + right) - corner
     # C q̇ + G = Aᵀ (h_θ + G_θ) is a suffix sum over links.
     run = 0.0
     for a in range(n - 1, -1, -1):

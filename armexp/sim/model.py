@@ -59,7 +59,7 @@ class ArmModel:
             lever[i] = lc[i]
             for a in range(i + 1):
                 for b in range(i + 1):
-                    w[a, b] += masses[i] * lever[a] * lever[b]
+                    w[a, b] += masses[i] * (lever[a] * lever[b])  # symmetric to the last bit
         w[np.diag_indices(n)] += inertia
         tail_mass = np.concatenate([np.cumsum(masses[::-1])[::-1][1:], [0.0]])
         g_coef = self.gravity * (masses * lc + lengths * tail_mass)

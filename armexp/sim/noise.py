@@ -21,7 +21,7 @@ _S11 = np.uint64(11)
 _INV53 = 1.0 / 9007199254740992.0  # 2**-53
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mix(z: np.uint64) -> np.uint64:
     z = (z ^ (z >> _S30)) * _MIX1
     z = (z ^ (z >> _S27)) * _MIX2
@@ -34,7 +34,7 @@ def stream_key(seed: int) -> np.uint64:
     return _mix(np.uint64(seed) * _GOLDEN + _GOLDEN)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def uniform(key: np.uint64, step: int, joint: int, n: int) -> float:
     """u ∈ [0, 1) for controller step ``step`` and ``joint`` of an n-joint arm."""
     z = _mix(key + np.uint64(step * n + joint + 1) * _GOLDEN)
@@ -51,7 +51,7 @@ def uniform_numpy(seed: int, steps: np.ndarray, n: int) -> np.ndarray:
 
 
 def _mix_np(z: np.ndarray | np.uint64) -> np.ndarray:
-    z = np.asarray(z, dtype=np.uint64)
-    z = (z ^ (z >> _S30)) * _MIX1
-    z = (z ^ (z >> _S27)) * _MIX2
-    return z ^ (z >> _S31)
+    x: np.ndarray = np.asarray(z, dtype=np.uint64)
+    x = (x ^ (x >> _S30)) * _MIX1
+    x = (x ^ (x >> _S27)) * _MIX2
+    return np.asarray(x ^ (x >> _S31), dtype=np.uint64)
