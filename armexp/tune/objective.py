@@ -149,7 +149,7 @@ class TuningObjective:
         self._model = plant.packed()
         self.n_calls = 0
 
-    def simulate(self, candidates: Array) -> tuple[Array, Array]:
+    def simulate(self, candidates: Array) -> tuple[Array, np.ndarray]:
         """e1 traces (K, S, T, n) and completed step counts (K, S) for the candidates."""
         sc = self.scenarios
         cand = np.ascontiguousarray(np.atleast_2d(candidates), dtype=np.float64)
