@@ -27,13 +27,19 @@ class Scenario:
         return int(self.commands.shape[0] * self.hold_steps)
 
 
-def _hold_steps(period: float, dt: float) -> int:
+def hold_steps(period: float, dt: float) -> int:
+    """Controller periods per command; ``period`` must be a whole number of them."""
     steps = round(period / dt)
     if steps < 1 or abs(steps * dt - period) > 1e-9:
         raise ValueError(
             f"switch_period={period} must be a whole number of controller periods {dt}."
         )
     return int(steps)
+
+
+def command_count(duration: float, hold: int, dt: float) -> int:
+    """Commands of ``hold`` periods needed to cover ``duration`` (at least one)."""
+    return max(1, int(np.ceil(duration / (hold * dt) - 1e-9)))
 
 
 def switching(
@@ -47,8 +53,8 @@ def switching(
     scale: float = 1.0,
 ) -> Scenario:
     """q̇_d uniform in ±scale·bound, redrawn every ``period`` s (the agent's action rate)."""
-    hold = _hold_steps(period, dt)
-    n_cmd = max(1, int(np.ceil(duration / (hold * dt) - 1e-9)))
+    hold = hold_steps(period, dt)
+    n_cmd = command_count(duration, hold, dt)
     cmds = rng.uniform(-1.0, 1.0, size=(n_cmd, len(bound))) * scale * np.asarray(bound)
     return Scenario(np.asarray(q0, float), np.asarray(offset, float), cmds, hold)
 

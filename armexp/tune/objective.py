@@ -28,6 +28,7 @@ import numpy as np
 
 from armexp.sim.core import simulate_batch
 from armexp.sim.model import Array, Plant
+from armexp.sim.scenario import command_count, hold_steps
 
 
 @dataclass(frozen=True)
@@ -73,13 +74,14 @@ def make_scenarios(
     mid, half = (lo + hi) / 2, 0.3 * (hi - lo)
     q0 = rng.uniform(mid - half, mid + half, size=(s, n))
     offset = settings.offset * rng.choice([-1.0, 1.0], size=(s, n))
-    hold = round(settings.switch_period / dt)
-    if hold < 1 or abs(hold * dt - settings.switch_period) > 1e-9:
+    try:
+        hold = hold_steps(settings.switch_period, dt)
+    except ValueError:
         raise ValueError(
             f"tuner.objective.switch_period={settings.switch_period} is not allowed: it must be a "
             f"whole number of controller periods ({dt} s)."
-        )
-    n_cmd = max(1, int(np.ceil(settings.horizon / (hold * dt) - 1e-9)))
+        ) from None
+    n_cmd = command_count(settings.horizon, hold, dt)
     commands = rng.uniform(-1.0, 1.0, size=(s, n_cmd, n)) * np.asarray(velocity_bound, float)
     seeds = rng.integers(0, 2**31 - 1, size=s).astype(np.float64)
     return ScenarioSet(q0, offset, commands, hold, seeds)
