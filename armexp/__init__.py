@@ -5,3 +5,10 @@ Manipulators for Non-Repetitive Reaching Tasks" (ICMA 2024). See README.md and D
 """
 
 __version__ = "0.1.0"
+
+try:  # registration needs gymnasium only; the report runs even where the envs are not importable
+    from armexp.envs import register_envs as _register_envs
+except ImportError:  # pragma: no cover
+    pass
+else:
+    _register_envs()

@@ -185,8 +185,14 @@ class EnvConfig:
     boundary_penalty: float = 50.0
     collision_penalty: float = 100.0
     growth_penalty: float = 1.0
+    #: Targets: ≥ target_margin from every obstacle, ≥ min_target_distance from the initial
+    #: tip, reachable within max_target_time s at the velocity bounds without the tip coming
+    #: within path_margin of an obstacle (`armexp.envs.workspace`).
     target_margin: float = checked(0.05, nonnegative())
-    workspace_grid: int = checked(200, at_least(10))
+    path_margin: float = checked(0.02, nonnegative())
+    min_target_distance: float = checked(0.2, nonnegative())
+    max_target_time: float = checked(12.0, _pos)
+    workspace_cells: int = checked(40_000, at_least(100))
 
 
 @dataclass

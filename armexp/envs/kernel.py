@@ -1,0 +1,140 @@
+"""The compiled body of one `ReachEnv.step`: 30 controller steps plus the task logic in one call.
+
+Keeping the reward, termination and observation next to the closed loop in one numba function
+means an environment step costs one dispatch instead of a dozen small numpy calls (52 → ~9 µs).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from armexp.sim.core import advance
+from armexp.sim.dynamics import tip_position
+
+# Status codes of `env_step`, in `armexp.envs.reach.REASONS` order (0 = still running).
+RUNNING, REACHED, COLLISION, JOINT_LIMIT, DIVERGED = 0, 1, 2, 3, 4
+# Layout of the float parameter vector.
+P_THRESHOLD, P_REACH, P_BOUNDARY, P_COLLISION, P_GROWTH = 0, 1, 2, 3, 4
+
+
+@njit(cache=True)
+def segment_enters(x0: float, y0: float, x1: float, y1: float, obstacles: np.ndarray) -> bool:
+    """Whether the segment (x0, y0)→(x1, y1) enters any circle (x, y, r) of ``obstacles``."""
+    vx = x1 - x0
+    vy = y1 - y0
+    length2 = vx * vx + vy * vy
+    for i in range(obstacles.shape[0]):
+        cx = obstacles[i, 0] - x0
+        cy = obstacles[i, 1] - y0
+        s = 0.0
+        if length2 > 0.0:
+            s = min(max((cx * vx + cy * vy) / length2, 0.0), 1.0)
+        dx = cx - s * vx
+        dy = cy - s * vy
+        if dx * dx + dy * dy < obstacles[i, 2] * obstacles[i, 2]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def observe(
+    q: np.ndarray,
+    tip: np.ndarray,
+    target: np.ndarray,
+    obstacles: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Eq. 5a into ``out``: target, tip − target, tip, q, tip-to-surface distance per obstacle;
+    non-finite entries become 0 and everything is clipped to the observation box."""
+    n = q.shape[0]
+    out[0] = target[0]
+    out[1] = target[1]
+    out[2] = tip[0] - target[0]
+    out[3] = tip[1] - target[1]
+    out[4] = tip[0]
+    out[5] = tip[1]
+    for j in range(n):
+        out[6 + j] = q[j]
+    for i in range(obstacles.shape[0]):
+        dx = tip[0] - obstacles[i, 0]
+        dy = tip[1] - obstacles[i, 1]
+        out[6 + n + i] = math.sqrt(dx * dx + dy * dy) - obstacles[i, 2]
+    for i in range(out.shape[0]):
+        v = out[i]
+        if not math.isfinite(v):
+            v = 0.0
+        out[i] = min(max(v, low[i]), high[i])
+
+
+@njit(cache=True)
+def env_step(
+    state: np.ndarray,
+    work: np.ndarray,
+    model: tuple,  # type: ignore[type-arg]
+    gains: np.ndarray,
+    kind: int,
+    dt: float,
+    key: np.uint64,
+    k0: int,
+    hold: int,
+    action: np.ndarray,
+    bound: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    obstacles: np.ndarray,
+    target: np.ndarray,
+    tip: np.ndarray,
+    params: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    obs: np.ndarray,
+    log: np.ndarray,
+) -> tuple[float, int, int, float]:
+    """One environment step. Updates ``tip`` (x, y) in place and fills ``obs``.
+
+    Returns (reward, status, controller steps completed, tip error). The checks run in the order
+    collision, joint limit, reach, so a step that collides while reaching is a collision.
+    """
+    n = state.shape[0] // 4
+    dqd = np.empty(n)
+    for j in range(n):
+        dqd[j] = min(max(float(action[j]), -1.0), 1.0) * bound[j]
+    prev_error = math.hypot(tip[0] - target[0], tip[1] - target[1])
+    done = advance(state, dqd, k0, hold, kind, gains, model, dt, key, work, log)
+    q = state[:n]
+    status = RUNNING
+    reward = 0.0
+    diverged = done < hold
+    if diverged:
+        status = DIVERGED
+        reward = -params[P_BOUNDARY]
+        error = prev_error
+    else:
+        x0 = tip[0]
+        y0 = tip[1]
+        tip[0], tip[1] = tip_position(q, model[2])
+        error = math.hypot(tip[0] - target[0], tip[1] - target[1])
+        outside = False
+        for j in range(n):
+            if q[j] < lower[j] or q[j] > upper[j]:
+                outside = True
+        if segment_enters(x0, y0, tip[0], tip[1], obstacles):
+            status = COLLISION
+            reward = -params[P_COLLISION]
+        elif outside:
+            status = JOINT_LIMIT
+            reward = -params[P_BOUNDARY]
+        elif error < params[P_THRESHOLD]:
+            status = REACHED
+            reward = params[P_REACH]
+        else:
+            reward = -math.log10(1.0 + error - params[P_THRESHOLD])
+            if error > prev_error:
+                reward -= params[P_GROWTH]
+    observe(q, tip, target, obstacles, low, high, obs)
+    return reward, status, done, error

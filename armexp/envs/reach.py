@@ -1,0 +1,278 @@
+"""``armexp/Reach-v0``: velocity-planned reaching around tip obstacles, with the controller inside.
+
+The environment is the closed loop of the paper's §V: the agent's action is a bounded joint
+velocity reference (eq. 7a); the tuned low-level controller (Algorithm 3, or the PID baseline)
+tracks it at 1 kHz on the uncertain plant (eqs. 2, 40) for one action period (30 ms, 33.33 Hz), in
+one compiled call of `armexp.sim.core`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from armexp.envs.geometry import Array, joint_positions
+from armexp.envs.kernel import env_step, observe
+from armexp.envs.render import Canvas
+from armexp.envs.workspace import Workspace, build_workspace
+from armexp.sim.core import Simulator
+from armexp.sim.model import Plant
+
+#: Why an episode ended (``info["reason"]``), in `armexp.envs.kernel` status order; "" while it
+#: runs.
+REASONS = ("reached", "collision", "joint_limit", "diverged", "time_limit")
+
+
+@dataclass(frozen=True)
+class ReachSettings:
+    """Everything that defines one reaching environment (Table I plus the arm and controller).
+
+    Built from a composed config by `armexp.envs.factory.settings_from_config`; the defaults
+    of the numbers are Table I's.
+    """
+
+    plant: Plant
+    controller: str
+    gains: Array
+    q0: Array
+    joint_lower: Array
+    joint_upper: Array
+    velocity_bound: Array
+    obstacles: Array = field(default_factory=lambda: np.zeros((0, 3)))
+    tasks: dict[str, tuple[float, float]] = field(default_factory=dict)
+    action_period: float = 0.03
+    max_steps: int = 1000
+    reach_threshold: float = 0.04
+    reach_reward: float = 200.0
+    boundary_penalty: float = 50.0
+    collision_penalty: float = 100.0
+    growth_penalty: float = 1.0
+    path_margin: float = 0.02
+    target_margin: float = 0.05
+    min_target_distance: float = 0.2
+    max_target_time: float = 12.0
+    workspace_cells: int = 40_000
+
+    @property
+    def hold_steps(self) -> int:
+        steps = self.action_period / self.plant.dt
+        if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+            raise ValueError(
+                f"env.action_period={self.action_period} is not allowed: it must be a whole "
+                f"number of controller periods ({self.plant.dt} s)."
+            )
+        return int(round(steps))
+
+    def workspace(self, max_time: float | None = None) -> Workspace:
+        return build_workspace(
+            self.plant.arm.lengths_array,
+            self.joint_lower,
+            self.joint_upper,
+            self.q0,
+            self.velocity_bound,
+            self.obstacles,
+            path_margin=self.path_margin,
+            target_margin=self.target_margin,
+            min_distance=self.min_target_distance,
+            max_time=self.max_target_time if max_time is None else max_time,
+            cells=self.workspace_cells,
+        )
+
+
+class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Reach a target with the arm's tip while the tip avoids circular obstacles.
+
+    ## Action Space
+    ``Box(-1, 1, (n,), float32)``: the joint velocity reference q̇_d (eq. 7a) as a fraction of
+    the velocity bounds of Table II (q̇1 ∈ [−0.1, 0.1], q̇2 ∈ [−0.4, 0.4] rad/s for the paper
+    arm). It is held for one action period (30 ms) while the controller tracks q_d = ∫q̇_d at
+    1 kHz.
+
+    ## Observation Space
+    ``Box((6 + n + m,), float32)`` as eq. 5a (eq. 4a when m = 0):
+    target position (x, y), tip − target (x, y), tip position (x, y), joint angles q (n), and
+    the distance from the tip to the surface of each of the m obstacles (negative inside).
+
+    ## Rewards (Table I)
+    * ``+reach_reward`` (200) when the tip error falls below ``reach_threshold`` (0.04 m);
+    * ``−collision_penalty`` (100) when the tip's path enters an obstacle;
+    * ``−boundary_penalty`` (50) when a joint leaves its limits (or the simulation diverges);
+    * otherwise ``−log10(1 + error − threshold)``, and ``growth_penalty`` (1) less when the
+      error grew during the step.
+    A step that both collides and leaves the limits counts as a collision.
+
+    ## Starting State
+    The same every episode: the arm at rest at ``q0`` (upper arm horizontal, forearm up). The
+    target is drawn uniformly from the precomputed collision-free reachable workspace
+    (`armexp.envs.workspace`), or fixed with ``reset(options={"target": (x, y)})`` or
+    ``reset(options={"task": "a"})`` for the tasks of ``tasks=paper_four``.
+
+    ## Episode End
+    Terminated on reach, collision, joint limit or divergence; truncated after ``max_steps``
+    (1000) actions. ``info["reason"]`` says which; ``info["is_success"]`` is True on reach.
+
+    ## Arguments
+    ``gymnasium.make("armexp/Reach-v0", overrides=["obstacles=none", "robot=three_link"])``
+    composes the packaged config with Hydra overrides (`armexp.envs.factory.make_reach`);
+    ``ReachEnv(settings)`` takes a `ReachSettings` directly. ``record=True`` keeps every 1 kHz
+    row of the episode for `trajectory` (evaluation), ``render_mode="rgb_array"`` draws the arm,
+    obstacles and target.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 33}
+
+    def __init__(
+        self, settings: ReachSettings, render_mode: str | None = None, record: bool = False
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode={render_mode!r} is not allowed; choose one of "
+                f"{self.metadata['render_modes']} or None."
+            )
+        self.settings = s = settings
+        self.render_mode = render_mode
+        self.record = record
+        self.n = n = s.plant.arm.n
+        self.m = m = s.obstacles.shape[0]
+        self._lengths = s.plant.arm.lengths_array
+        self._hold = s.hold_steps
+        self._bound = np.asarray(s.velocity_bound, dtype=np.float64)
+        self._lower = np.asarray(s.joint_lower, dtype=np.float64)
+        self._upper = np.asarray(s.joint_upper, dtype=np.float64)
+        self._obstacles = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 3)
+        self.workspace = s.workspace()
+        self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0)
+
+        reach = float(self._lengths.sum())
+        far = reach + (float(np.hypot(*self._obstacles[:, :2].T).max()) if m else 0.0)
+        low = np.concatenate(
+            [[-reach] * 2, [-2 * reach] * 2, [-reach] * 2, self._lower - math.pi,
+             -self._obstacles[:, 2] if m else []]
+        )  # fmt: skip
+        high = np.concatenate(
+            [[reach] * 2, [2 * reach] * 2, [reach] * 2, self._upper + math.pi, [far] * m]
+        )
+        self.observation_space = spaces.Box(low.astype(np.float32), high.astype(np.float32))
+        self._obs_low, self._obs_high = low, high
+        self._params = np.array(
+            [s.reach_threshold, s.reach_reward, s.boundary_penalty, s.collision_penalty,
+             s.growth_penalty]
+        )  # fmt: skip
+        self._log_width = 4 + 5 * n
+        self._no_log = np.zeros((0, self._log_width))
+        self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
+
+        self.target = self.workspace.points[0].copy()
+        self.tip = np.zeros(2)
+        self.error = 0.0
+        self.steps = 0
+        self.reason = ""
+        self._rows: list[Array] = []
+        self._canvas: Canvas | None = None
+
+    # ----------------------------------------------------------------------------- gym API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        options = options or {}
+        if "task" in options:
+            name = str(options["task"])
+            if name not in self.settings.tasks:
+                raise ValueError(
+                    f"task={name!r} is not allowed; this environment's tasks are "
+                    f"{sorted(self.settings.tasks) or 'none (tasks.targets is empty)'}."
+                )
+            self.target = np.asarray(self.settings.tasks[name], dtype=np.float64)
+        elif options.get("target") is not None:
+            self.target = np.asarray(options["target"], dtype=np.float64).reshape(2)
+        else:
+            self.target = self.workspace.sample(self.np_random)
+        # The τ_d draws of the episode follow the env's seeded generator.
+        self.sim.reset(self.settings.q0, seed=int(self.np_random.integers(2**31)))
+        self.steps = 0
+        self.reason = ""
+        self.tip = np.array(self.sim.tip())
+        self.error = float(np.hypot(*(self.tip - self.target)))
+        self._rows = []
+        return self._observation(), self._info()
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        sim = self.sim
+        if sim.diverged:  # stepping on after a divergence changes nothing
+            self.steps += 1
+            return self._observation(), -self.settings.boundary_penalty, True, False, self._info()
+        log = np.zeros((self._hold, self._log_width)) if self.record else self._no_log
+        obs = np.empty(self._obs_low.shape[0], dtype=np.float32)
+        reward, status, done, self.error = env_step(
+            sim.state, sim._work, sim._model, sim.gains, sim.kind, sim.plant.dt, sim._key,
+            sim.step_index, self._hold, np.asarray(action, dtype=np.float64), self._bound,
+            self._lower, self._upper, self._obstacles, self.target, self.tip, self._params,
+            self._obs_low, self._obs_high, obs, log,
+        )  # fmt: skip
+        sim.step_index += done
+        if done < self._hold:
+            sim.diverged = True
+            sim.step_index += 1
+        if self.record:
+            self._rows.append(log[: done + 1] if done < self._hold else log)
+        self.steps += 1
+        self.reason = REASONS[status - 1] if status else ""
+        terminated = status != 0
+        truncated = not terminated and self.steps >= self.settings.max_steps
+        if truncated:
+            self.reason = "time_limit"
+        return obs, float(reward), terminated, truncated, self._info()
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        if self.render_mode != "rgb_array":
+            return None
+        if self._canvas is None:
+            self._canvas = Canvas(extent=float(self._lengths.sum()) + 0.15)
+        c = self._canvas
+        c.clear()
+        for x, y, r in self._obstacles:
+            c.disc((x, y), r, (220, 80, 70))
+        c.ring(tuple(self.target), self.settings.reach_threshold, (40, 170, 60))
+        c.disc(tuple(self.target), 0.015, (40, 170, 60))
+        pts = joint_positions(self.sim.q.copy(), self._lengths)
+        for p0, p1 in zip(pts[:-1], pts[1:], strict=True):
+            c.segment(tuple(p0), tuple(p1), 0.025, (50, 60, 80))
+        for p in pts[:-1]:
+            c.disc(tuple(p), 0.035, (120, 130, 150))
+        c.disc(tuple(pts[-1]), 0.02, (30, 110, 200))
+        return c.image()
+
+    # ------------------------------------------------------------------------------ helpers
+    def _observation(self) -> np.ndarray:
+        obs = np.empty(self._obs_low.shape[0], dtype=np.float32)
+        observe(
+            self.sim.q, self.tip, self.target, self._obstacles, self._obs_low, self._obs_high, obs
+        )
+        return obs
+
+    def _info(self) -> dict[str, Any]:
+        return {
+            "tip_error": self.error,
+            "reason": self.reason,
+            "is_success": self.reason == "reached",
+            "collision": self.reason == "collision",
+            "target": self.target.copy(),
+            "steps": self.steps,
+        }
+
+    def trajectory(self) -> Array:
+        """The episode's 1 kHz rows (`armexp.sim.core.trajectory_columns` plus the tip's target
+        error in m); needs ``record=True``."""
+        if not self.record:
+            raise RuntimeError("trajectory() needs ReachEnv(record=True).")
+        if not self._rows:
+            return np.zeros((0, 5 + 5 * self.n))
+        rows = np.concatenate(self._rows)
+        err = np.hypot(rows[:, -2] - self.target[0], rows[:, -1] - self.target[1])
+        return np.column_stack([rows, err])

@@ -1,0 +1,157 @@
+"""The precomputed collision-free reachable workspace that targets are drawn from (DESIGN §6).
+
+Joint space inside the limits is gridded so that one grid move per joint is exactly what the
+velocity bound allows in one time cell (h_j = q̇_j,max · Δt). A breadth-first search from the
+initial configuration over cells whose tip is clear of every obstacle by ``path_margin`` then gives,
+for every cell, the least time in which a velocity-bounded motion that never brings the tip into
+an obstacle can reach it. Targets are the tips of cells that are
+
+* reachable within ``max_time`` (so an episode of ``max_steps`` actions has slack to get there),
+* at least ``target_margin`` from every obstacle surface, and
+* at least ``min_distance`` from the initial tip (else an episode would start already reached),
+
+deduplicated on a Cartesian grid of ``resolution`` so that sampling is uniform over the area of
+the workspace rather than over joint space.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from armexp.envs.geometry import Array, clearance, tips
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Target points (P, 2), their least travel times (s) and a configuration reaching each."""
+
+    points: Array
+    times: Array
+    configs: Array
+    cell_time: float
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def sample(self, rng: np.random.Generator) -> Array:
+        return self.points[int(rng.integers(len(self)))].copy()
+
+    def travel_time(self, point: Array | list[float]) -> float:
+        """Least travel time to the workspace point nearest ``point`` (s)."""
+        d = np.linalg.norm(self.points - np.asarray(point, dtype=np.float64), axis=1)
+        return float(self.times[int(np.argmin(d))])
+
+
+def _dilate(mask: np.ndarray) -> np.ndarray:
+    """Chebyshev (3ⁿ-cube) dilation by one cell; separable, so one pass per axis."""
+    out = mask.copy()
+    for axis in range(mask.ndim):
+        grown = out.copy()
+        lead = [slice(None)] * mask.ndim
+        lag = [slice(None)] * mask.ndim
+        lead[axis], lag[axis] = slice(1, None), slice(None, -1)
+        grown[tuple(lead)] |= out[tuple(lag)]
+        grown[tuple(lag)] |= out[tuple(lead)]
+        out = grown
+    return out
+
+
+def travel_times(
+    lengths: Array,
+    lower: Array,
+    upper: Array,
+    q0: Array,
+    bound: Array,
+    obstacles: Array,
+    path_margin: float,
+    max_time: float,
+    cells: int,
+) -> tuple[list[Array], Array, float]:
+    """Grid axes, least travel time per cell (inf where unreachable) and the time cell Δt."""
+    n = lengths.shape[0]
+    spans = (upper - lower) / bound
+    dt = float((np.prod(spans) / cells) ** (1.0 / n))
+    axes = [np.arange(lower[j], upper[j] + 1e-12, bound[j] * dt) for j in range(n)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+    tip = tips(grid, lengths)
+    free = (clearance(tip, obstacles) > path_margin).all(-1)
+    start = tuple(
+        int(np.clip(np.rint((q0[j] - lower[j]) / (bound[j] * dt)), 0, len(axes[j]) - 1))
+        for j in range(n)
+    )
+    if not free[start]:
+        raise ValueError(
+            "the initial configuration puts the tip inside an obstacle (or within "
+            f"{path_margin} m of one); move robot.q0 or the obstacles."
+        )
+    times = np.full(free.shape, np.inf)
+    frontier = np.zeros(free.shape, dtype=bool)
+    frontier[start] = True
+    visited = frontier.copy()
+    times[start] = 0.0
+    for layer in range(1, int(np.ceil(max_time / dt)) + 1):
+        frontier = _dilate(frontier) & free & ~visited
+        if not frontier.any():
+            break
+        times[frontier] = layer * dt
+        visited |= frontier
+    return axes, times, dt
+
+
+@lru_cache(maxsize=16)
+def _cached(key: tuple) -> Workspace:  # type: ignore[type-arg]
+    (lengths, lower, upper, q0, bound, obstacles, path_margin, target_margin, min_distance,
+     max_time, cells, resolution) = key  # fmt: skip
+    arr = [np.asarray(v, dtype=np.float64) for v in (lengths, lower, upper, q0, bound)]
+    obs = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
+    axes, times, dt = travel_times(*arr, obs, path_margin, max_time, cells)
+    reached = np.isfinite(times)
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)[reached]
+    t = times[reached]
+    tip = tips(grid, arr[0])
+    start_tip = tips(arr[3], arr[0])
+    keep = np.linalg.norm(tip - start_tip, axis=1) >= min_distance
+    if obs.shape[0]:
+        keep &= (clearance(tip, obs) >= target_margin).all(-1)
+    tip, t, grid = tip[keep], t[keep], grid[keep]
+    if tip.shape[0] == 0:
+        raise ValueError(
+            "no target is reachable: every reachable tip position is too close to the start or to "
+            "an obstacle; loosen env.target_margin / env.min_target_distance or move obstacles."
+        )
+    # One representative per Cartesian bin: the cell that reaches it soonest.
+    order = np.argsort(t, kind="stable")
+    keys = np.floor(tip[order] / resolution).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    pick = np.sort(order[first])
+    return Workspace(points=tip[pick], times=t[pick], configs=grid[pick], cell_time=dt)
+
+
+def build_workspace(
+    lengths: Array,
+    lower: Array,
+    upper: Array,
+    q0: Array,
+    bound: Array,
+    obstacles: Array,
+    *,
+    path_margin: float = 0.02,
+    target_margin: float = 0.05,
+    min_distance: float = 0.2,
+    max_time: float = 15.0,
+    cells: int = 40_000,
+    resolution: float = 0.02,
+) -> Workspace:
+    """The workspace for one arm and obstacle set (cached: every env of a run shares it)."""
+
+    def key(a: Array) -> tuple[float, ...]:
+        return tuple(float(x) for x in np.asarray(a, dtype=np.float64).ravel())
+
+    return _cached(
+        (key(lengths), key(lower), key(upper), key(q0), key(bound), key(obstacles),
+         float(path_margin), float(target_margin), float(min_distance), float(max_time),
+         int(cells), float(resolution))
+    )  # fmt: skip
