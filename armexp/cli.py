@@ -22,8 +22,14 @@ EXIT_INTERRUPTED = 130
 STAGES: dict[str, tuple[str | None, str]] = {
     "simulate": ("armexp.stages.simulate", "one closed-loop run of a controller, no agent"),
     "tune": ("armexp.stages.tune", "cuckoo search (Algorithm 2) of the controller gains"),
-    "train": (None, "SAC training of the motion planner with the controller in the loop"),
-    "eval": (None, "tasks (a)-(d) and held-out targets, proposed controller and PID"),
+    "train": (
+        "armexp.stages.train",
+        "SAC training of the motion planner with the controller in the loop",
+    ),
+    "eval": (
+        "armexp.stages.evaluate",
+        "tasks (a)-(d) and held-out targets, proposed controller and PID",
+    ),
     "report": (None, "Tables I-III and Figures 3-6 from stored runs"),
     "pipeline": (None, "tune -> train -> eval -> report under one parent run"),
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
@@ -71,6 +77,9 @@ def usage() -> str:
         "  armexp simulate controller=pid scenario=hold",
         "  armexp tune tuner=cso_fast",
         "  armexp tune -m controller=subsystem_adaptive,pid",
+        "  armexp train agent=sac_quick            # gains from the latest tune run",
+        "  armexp train controller.gains=paper     # the paper's gains, no tune run needed",
+        "  armexp eval tasks.n_random=100",
         "Outputs: MLflow store runs/mlflow.db (view with `armexp ui`).",
     ]
     return "\n".join(lines)
@@ -96,6 +105,19 @@ def split_args(args: Sequence[str]) -> tuple[list[str], list[str], bool, bool]:
         else:
             overrides.append(a)
     return flags, overrides, multirun, validate
+
+
+def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
+    """``controller.gains=<preset>`` (or ``controller.gains.a0=…``) on a train command means
+    "train with these gains", not "with a tune run's": add ``train.gains=config`` unless the
+    user chose ``train.gains`` themselves."""
+    if stage != "train" or any(o.startswith("train.gains=") for o in overrides):
+        return overrides
+    keys = [o.lstrip("+~").partition("=")[0] for o in overrides]
+    if any(k in ("controller.gains", "controller/gains") or k.startswith("controller.gains.")
+           for k in keys):  # fmt: skip
+        return [*overrides, "train.gains=config"]
+    return overrides
 
 
 def sweep_combinations(overrides: Sequence[str], limit: int = 64) -> list[list[str]]:
@@ -136,6 +158,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     from armexp.config import ConfigError, config_dir, normalize_overrides, register_schemas
 
     flags, overrides, multirun, validate = split_args(args)
+    overrides = imply_gains_source(stage, overrides)
     if validate:
         try:
             precheck(overrides, multirun)

@@ -132,8 +132,12 @@ def stage_run(
     run_name: str | None = None,
     parent_run_id: str | None = None,
     extra_tags: Mapping[str, str] | None = None,
+    resume_run_id: str | None = None,
 ) -> Iterator[mlflow.ActiveRun]:
-    """One MLflow run for one stage execution, ended FINISHED / FAILED / KILLED truthfully."""
+    """One MLflow run for one stage execution, ended FINISHED / FAILED / KILLED truthfully.
+
+    ``resume_run_id`` reopens an existing run (its params and config stay as first logged).
+    """
     experiment_id = setup(cfg)
     tags = {STAGE_TAG: stage, **(extra_tags or {})}
     commit = git_commit()
@@ -142,17 +146,25 @@ def stage_run(
         tags["mlflow.source.git.commit"] = commit
     if parent_run_id:
         tags["mlflow.parentRunId"] = parent_run_id
-    run = retry(
-        lambda: mlflow.start_run(
-            experiment_id=experiment_id, run_name=run_name, tags=tags, nested=bool(parent_run_id)
+    if resume_run_id:
+        run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
+        mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})
+    else:
+        run = retry(
+            lambda: mlflow.start_run(
+                experiment_id=experiment_id,
+                run_name=run_name,
+                tags=tags,
+                nested=bool(parent_run_id),
+            )
         )
-    )
     try:
-        params = flatten(cfg)
-        items = sorted(params.items())
-        for i in range(0, len(items), 100):
-            retry(lambda chunk=dict(items[i : i + 100]): mlflow.log_params(chunk))  # type: ignore[misc]
-        mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
+        if not resume_run_id:
+            params = flatten(cfg)
+            items = sorted(params.items())
+            for i in range(0, len(items), 100):
+                retry(lambda chunk=dict(items[i : i + 100]): mlflow.log_params(chunk))  # type: ignore[misc]
+            mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
         yield run
     except KeyboardInterrupt:
         mlflow.set_tag(ERROR_TAG, "interrupted")
@@ -169,15 +181,15 @@ def stage_run(
         mlflow.end_run(status="FINISHED")
 
 
-def log_dataframe(df: Any, name: str) -> None:
-    """Log a pandas DataFrame as an artifact; the suffix picks Parquet or CSV."""
+def log_dataframe(df: Any, name: str, folder: str | None = None) -> None:
+    """Log a pandas DataFrame as an artifact (under ``folder``); the suffix picks Parquet or CSV."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / name
         if name.endswith(".parquet"):
             df.to_parquet(path, index=False)
         else:
             df.to_csv(path, index=False)
-        mlflow.log_artifact(str(path))
+        retry(lambda: mlflow.log_artifact(str(path), folder))
 
 
 def log_metric_history(name: str, values: Any, start_step: int = 0) -> None:
@@ -269,18 +281,24 @@ def ui_command(cfg: DictConfig) -> list[str]:
 
 
 def tuned_gains(
-    cfg: DictConfig, run_id: str | None = None, key: str = "tune_run"
+    cfg: DictConfig, run_id: str | None = None, key: str = "tune_run", controller: str | None = None
 ) -> tuple[Run, dict[str, Any]]:
-    """Gains of a tune run: ``run_id``, or the latest FINISHED tune run for the same controller
-    and robot. Returns the run and its ``gains.yaml`` in config form."""
+    """Gains of a tune run: ``run_id``, or the latest FINISHED tune run for ``controller``
+    (default: the configured one) and the configured robot. Returns the run and its
+    ``gains.yaml`` in config form."""
     import yaml
 
-    run = find_stage_run(
-        cfg,
-        "tune",
-        run_id=run_id,
-        match={"controller.name": str(cfg.controller.name), "robot.name": str(cfg.robot.name)},
-        key=key,
-    )
+    match = {
+        "controller.name": controller or str(cfg.controller.name),
+        "robot.name": str(cfg.robot.name),
+    }
+    run = find_stage_run(cfg, "tune", run_id=run_id, match=match, key=key)
+    for param, wanted in match.items():
+        got = run.data.params.get(param)
+        if got != wanted:
+            raise ConfigError(
+                f"{key}={run.info.run_id} is not allowed: that tune run has {param}={got}, and "
+                f"{param}={wanted} is needed here."
+            )
     path = download_artifact(run.info.run_id, "gains.yaml", cfg)
     return run, yaml.safe_load(path.read_text())

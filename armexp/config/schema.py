@@ -168,7 +168,14 @@ class AgentConfig:
     episodes: int = checked(20000, at_least(1))
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))
+    ent_coef: str = "auto"
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
+    #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
+    n_envs: int = checked(1, at_least(1))
+    vec_env: str = checked("dummy", one_of("dummy", "subproc"))
+    #: Extra caps on the budget besides ``episodes`` (None: none): environment steps, minutes.
+    max_env_steps: int | None = None
+    max_minutes: float | None = None
     device: str = "cpu"
 
 
@@ -248,6 +255,37 @@ class TuneStageConfig:
 
 
 @dataclass
+class TrainStageConfig:
+    run_name: str | None = None
+    #: Gains source: ``tuned`` = a tune run (``tune_run`` or the latest matching one),
+    #: ``config`` = ``controller.gains`` as composed (e.g. ``controller.gains=paper``).
+    gains: str = checked("tuned", one_of("tuned", "config"))
+    tune_run: str | None = None
+    #: A KILLED or FAILED train run to continue from its latest checkpoint.
+    resume: str | None = None
+    checkpoint_every: int = checked(10_000, at_least(1))
+    log_every: int = checked(2_000, at_least(1))
+    progress: bool = True
+    torch_threads: int | None = None
+
+
+@dataclass
+class EvalStageConfig:
+    run_name: str | None = None
+    #: The train run whose policy is evaluated (None: the latest FINISHED one that matches).
+    train_run: str | None = None
+    #: PID baseline gains: ``tuned`` (``pid_tune_run`` or the latest PID tune run) or ``config``
+    #: (``conf/controller/gains/pid_default.yaml``).
+    pid_gains: str = checked("tuned", one_of("tuned", "config"))
+    pid_tune_run: str | None = None
+    controllers: list[str] = field(default_factory=lambda: ["subsystem_adaptive", "pid"])
+    #: Evaluate the paper tasks (a)-(d); plus tasks.n_random held-out random targets.
+    paper_tasks: bool = True
+    random_trajectories: bool = False
+    deterministic: bool = True
+
+
+@dataclass
 class ArmexpConfig:
     """The root config every stage composes (``conf/config.yaml``)."""
 
@@ -263,6 +301,8 @@ class ArmexpConfig:
     tracking: TrackingConfig = MISSING
     simulate: SimulateStageConfig = field(default_factory=SimulateStageConfig)
     tune: TuneStageConfig = field(default_factory=TuneStageConfig)
+    train: TrainStageConfig = field(default_factory=TrainStageConfig)
+    eval: EvalStageConfig = field(default_factory=EvalStageConfig)
 
 
 SCHEMAS: dict[str, type] = {

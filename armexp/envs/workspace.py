@@ -82,17 +82,18 @@ def travel_times(
         int(np.clip(np.rint((q0[j] - lower[j]) / (bound[j] * dt)), 0, len(axes[j]) - 1))
         for j in range(n)
     )
-    if not free[start]:
+    if not (clearance(tips(q0, lengths), obstacles) > path_margin).all():
         raise ValueError(
             "the initial configuration puts the tip inside an obstacle (or within "
             f"{path_margin} m of one); move robot.q0 or the obstacles."
         )
+    free[start] = True  # the arm is there, whatever the grid node's rounding says
     times = np.full(free.shape, np.inf)
     frontier = np.zeros(free.shape, dtype=bool)
     frontier[start] = True
     visited = frontier.copy()
     times[start] = 0.0
-    for layer in range(1, int(np.ceil(max_time / dt)) + 1):
+    for layer in range(1, int(np.floor(max_time / dt + 1e-9)) + 1):
         frontier = _dilate(frontier) & free & ~visited
         if not frontier.any():
             break

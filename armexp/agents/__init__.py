@@ -1,0 +1,1 @@
+"""Building SB3 agents from config, their environments, and the bridges to MLflow."""

@@ -1,0 +1,202 @@
+"""SB3 callbacks and logger output that stream training to MLflow and keep it resumable."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import mlflow
+import numpy as np
+from mlflow.entities import Metric
+from mlflow.tracking import MlflowClient
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import KVWriter
+
+from armexp.tracking import retry
+
+#: Artifact paths of a train run.
+CHECKPOINT_DIR = "checkpoint"
+MODEL_DIR = "model"
+MODEL_FILE = "model.zip"
+STATE_FILE = "state.json"
+
+
+class MLflowOutputFormat(KVWriter):
+    """SB3 logger output that sends every numeric value SB3 records (train/actor_loss,
+    rollout/ep_rew_mean, rollout/success_rate, …) to the active MLflow run, at SB3's step."""
+
+    def __init__(self, run_id: str) -> None:
+        self.run_id = run_id
+        self.client = MlflowClient()
+
+    def write(
+        self,
+        key_values: dict[str, Any],
+        key_excluded: dict[str, tuple[str, ...]],
+        step: int = 0,
+    ) -> None:
+        now = int(time.time() * 1000)
+        metrics = [
+            Metric(key, float(value), now, step)
+            for key, value in sorted(key_values.items())
+            if "mlflow" not in (key_excluded.get(key) or ())
+            and isinstance(value, int | float | np.floating | np.integer)
+            and not isinstance(value, bool)
+            and np.isfinite(value)
+        ]
+        if metrics:
+            retry(lambda: self.client.log_batch(self.run_id, metrics=metrics))
+
+    def close(self) -> None:
+        pass
+
+
+class EpisodeStats(BaseCallback):
+    """Per-episode reward, length, success and collision, plus rates over the last ``window``
+    episodes, logged in batches every ``log_every`` environment steps (and at the end)."""
+
+    def __init__(self, run_id: str, log_every: int, window: int = 100, start_episode: int = 0):
+        super().__init__()
+        self.run_id = run_id
+        self.log_every = log_every
+        self.recent: deque[tuple[bool, bool]] = deque(maxlen=window)
+        self.episodes = start_episode
+        self.pending: list[Metric] = []
+        self.client = MlflowClient()
+        self.started = time.perf_counter()
+        self.wall_offset = 0.0
+        self._last_flush = 0
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean([s for s, _ in self.recent])) if self.recent else 0.0
+
+    @property
+    def collision_rate(self) -> float:
+        return float(np.mean([c for _, c in self.recent])) if self.recent else 0.0
+
+    def wall(self) -> float:
+        return self.wall_offset + time.perf_counter() - self.started
+
+    def _on_step(self) -> bool:
+        now = int(time.time() * 1000)
+        step = self.num_timesteps
+        for info in self.locals["infos"]:
+            episode = info.get("episode")
+            if episode is None:
+                continue
+            self.episodes += 1
+            success, collision = bool(info.get("is_success")), bool(info.get("collision"))
+            self.recent.append((success, collision))
+            self.pending += [
+                Metric("episode/reward", float(episode["r"]), now, step),
+                Metric("episode/length", float(episode["l"]), now, step),
+                Metric("episode/success", float(success), now, step),
+                Metric("episode/collision", float(collision), now, step),
+                Metric("rollout/success_rate_100", self.success_rate, now, step),
+                Metric("rollout/collision_rate_100", self.collision_rate, now, step),
+                Metric("rollout/episodes", float(self.episodes), now, step),
+                Metric("time/wall_s", self.wall(), now, step),
+            ]
+        if step - self._last_flush >= self.log_every:
+            self.flush()
+        return True
+
+    def flush(self) -> None:
+        self._last_flush = self.num_timesteps
+        batch, self.pending = self.pending, []
+        for i in range(0, len(batch), 1000):
+            chunk = batch[i : i + 1000]
+            retry(lambda c=chunk: self.client.log_batch(self.run_id, metrics=c))  # type: ignore[misc]
+
+    def _on_training_end(self) -> None:
+        self.flush()
+
+
+class Checkpoint(BaseCallback):
+    """Every ``every`` environment steps: the model (policy, critics, optimisers, entropy
+    coefficient and step count; no replay buffer) and a small state file, logged over the
+    previous checkpoint's artifacts so that an interrupted run can be resumed."""
+
+    def __init__(self, every: int, state: Callable[[], dict[str, Any]]):
+        super().__init__()
+        self.every = every
+        self.state = state
+        self._last = 0
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps - self._last >= self.every:
+            self.save()
+        return True
+
+    def save(self, folder: str = CHECKPOINT_DIR) -> None:
+        self._last = self.num_timesteps
+        log_model(self.model, folder, self.state())
+
+
+def log_model(model: Any, folder: str, state: dict[str, Any]) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        model.save(str(Path(tmp) / MODEL_FILE))
+        (Path(tmp) / STATE_FILE).write_text(json.dumps(state, indent=1))
+        retry(lambda: mlflow.log_artifacts(tmp, folder))
+
+
+class Progress(BaseCallback):
+    """A tqdm bar over environment steps showing the recent success and collision rates."""
+
+    def __init__(self, total: int, stats: EpisodeStats, initial: int = 0) -> None:
+        super().__init__()
+        self.total = total
+        self.stats = stats
+        self.initial = initial
+        self.bar: Any = None
+
+    def _on_training_start(self) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=self.total, initial=self.initial, unit="step", desc="train")
+
+    def _on_step(self) -> bool:
+        if self.bar is not None and self.n_calls % 200 == 0:
+            self.bar.n = self.num_timesteps
+            self.bar.set_postfix(
+                episodes=self.stats.episodes,
+                success=f"{self.stats.success_rate:.2f}",
+                collision=f"{self.stats.collision_rate:.2f}",
+                refresh=True,
+            )
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.bar is not None:
+            self.bar.n = self.num_timesteps
+            self.bar.close()
+
+
+class Budget(BaseCallback):
+    """Stops training after ``episodes`` episodes, ``steps`` environment steps or ``seconds`` of
+    wall time, whichever comes first (None: no limit)."""
+
+    def __init__(
+        self, stats: EpisodeStats, episodes: int, steps: int | None, seconds: float | None
+    ) -> None:
+        super().__init__()
+        self.stats = stats
+        self.episodes = episodes
+        self.steps = steps
+        self.seconds = seconds
+        self.reason = ""
+
+    def _on_step(self) -> bool:
+        if self.stats.episodes >= self.episodes:
+            self.reason = "episodes"
+        elif self.steps is not None and self.num_timesteps >= self.steps:
+            self.reason = "steps"
+        elif self.seconds is not None and self.stats.wall() >= self.seconds:
+            self.reason = "time"
+        return not self.reason

@@ -1,0 +1,75 @@
+"""Running a trained policy on one episode and measuring it (DESIGN §8, Table III)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from armexp.envs.reach import ReachEnv
+from armexp.sim.metrics import tracking_metrics
+from armexp.sim.model import Array
+
+
+@dataclass
+class Episode:
+    """One evaluated episode: how it ended, its return, and the 1 kHz rows (with target error)."""
+
+    reason: str
+    steps: int
+    episode_return: float
+    final_error: float
+    target: Array
+    rows: Array
+
+
+def rollout(
+    env: ReachEnv,
+    policy: Any,
+    options: dict[str, Any],
+    seed: int,
+    deterministic: bool = True,
+) -> Episode:
+    """Run ``policy`` (anything with SB3's ``predict``) for one episode of ``env``."""
+    obs, info = env.reset(seed=seed, options=options)
+    total = 0.0
+    while True:
+        action, _ = policy.predict(obs, deterministic=deterministic)
+        obs, reward, terminated, truncated, info = env.step(action)
+        total += reward
+        if terminated or truncated:
+            break
+    rows = env.trajectory() if env.record else np.zeros((0, 0))
+    return Episode(
+        info["reason"], int(info["steps"]), total, float(info["tip_error"]), env.target.copy(), rows
+    )
+
+
+def episode_metrics(episode: Episode, n: int, lengths: Array, threshold: float) -> dict[str, float]:
+    """Table III's quantities for one episode.
+
+    success, target_time (s, first time the tip error < threshold; NaN if never),
+    final_error_cm, rms_e1 (rad) and tip_rms_cm (tracking), max_abs_tau_<j> (N·m),
+    convergence_time (s, tracking error into its band), collision, steps, return.
+    """
+    rows = episode.rows
+    t = rows[:, 0]
+    error = rows[:, -1]
+    inside = np.nonzero(error < threshold)[0]
+    tracking = tracking_metrics(rows[:, :-1], n, lengths)
+    out = {
+        "success": float(episode.reason == "reached"),
+        "collision": float(episode.reason == "collision"),
+        "target_time": float(t[inside[0]]) if inside.size else float("nan"),
+        "final_error_cm": episode.final_error * 100.0,
+        "rms_e1": tracking["rms_e1"],
+        "tip_rms_cm": tracking["tip_rms_cm"],
+        "convergence_time": tracking["convergence_time"],
+        "steps": float(episode.steps),
+        "return": float(episode.episode_return),
+        "duration": float(t[-1] - t[0]) if t.size else 0.0,
+    }
+    for j in range(1, n + 1):
+        out[f"max_abs_tau_{j}"] = tracking[f"max_abs_tau_{j}"]
+    return out

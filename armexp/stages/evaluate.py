@@ -1,0 +1,189 @@
+"""`armexp eval`: a trained policy on tasks (a)–(d) and held-out random targets, with the tuned
+adaptive controller and with the tuned PID baseline in the loop (DESIGN §8, Table III).
+
+The policy, the environment (robot, obstacles, env settings) and the adaptive gains are those of
+the train run (``eval.train_run`` or the latest FINISHED one for the configured robot and
+obstacles); the targets come from this run's ``tasks`` config. Both controllers see the same
+targets and the same disturbance draws (same reset seed per episode).
+
+Logged: per controller and task the metrics of `armexp.agents.rollout.episode_metrics` as
+``<controller>.<task>.<metric>``; per controller the aggregate over random targets
+(``<controller>.random.success_rate`` …); every episode as rows of ``episodes.csv``; the 1 kHz
+trajectory of each paper task per controller as ``trajectories/<controller>/<task>.parquet``
+(the simulate stage's columns plus ``target_error``; random targets too with
+``eval.random_trajectories=true``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import mlflow
+import numpy as np
+import pandas as pd
+import yaml
+from omegaconf import DictConfig, OmegaConf
+
+from armexp import tracking
+from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
+from armexp.agents.rollout import episode_metrics, rollout
+from armexp.agents.sac import load_sac
+from armexp.config import ConfigError
+from armexp.envs.factory import settings_from_config
+from armexp.envs.reach import ReachEnv
+from armexp.sim.core import trajectory_columns
+
+log = logging.getLogger(__name__)
+
+TRAIN_RUN_TAG = "armexp.train_run"
+PID_TUNE_RUN_TAG = "armexp.pid_tune_run"
+#: Short controller labels used in metric names.
+LABELS = {"subsystem_adaptive": "adaptive", "pid": "pid"}
+
+
+def _train_run(cfg: DictConfig) -> Any:
+    return tracking.find_stage_run(
+        cfg,
+        "train",
+        run_id=cfg.eval.train_run,
+        match={"robot.name": str(cfg.robot.name), "obstacles.name": str(cfg.obstacles.name)},
+        key="eval.train_run",
+    )
+
+
+def _pid_gains(cfg: DictConfig, train_cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
+    if cfg.eval.pid_gains == "config":
+        from armexp.config import config_dir
+
+        gains = OmegaConf.to_container(
+            OmegaConf.load(config_dir() / "controller" / "gains" / "pid_default.yaml")
+        )
+        assert isinstance(gains, dict)
+        return gains, {}
+    run, gains = tracking.tuned_gains(
+        train_cfg, cfg.eval.pid_tune_run, key="eval.pid_tune_run", controller="pid"
+    )
+    print(f"eval: PID gains from tune run {run.info.run_id}")
+    return gains, {PID_TUNE_RUN_TAG: run.info.run_id}
+
+
+def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]:
+    """(task name, reset options): the paper tasks, then ``random_<i>`` held-out targets."""
+    out: list[tuple[str, dict[str, Any]]] = []
+    if cfg.eval.paper_tasks:
+        out += [(name, {"task": name}) for name in env.settings.tasks]
+    rng = np.random.default_rng(int(cfg.tasks.random_seed))
+    for i in range(int(cfg.tasks.n_random)):
+        out.append((f"random_{i:03d}", {"target": env.workspace.sample(rng)}))
+    return out
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    train_run = _train_run(cfg)
+    train_id = train_run.info.run_id
+    print(f"eval: policy of train run {train_id}")
+    train_cfg = OmegaConf.load(tracking.download_artifact(train_id, "config.yaml", cfg))
+    assert isinstance(train_cfg, DictConfig)
+    # The episode targets are this run's choice; the environment is the policy's.
+    train_cfg.tasks = cfg.tasks
+    adaptive_gains = yaml.safe_load(
+        tracking.download_artifact(train_id, "gains.yaml", cfg).read_text()
+    )
+    trained_with = str(train_cfg.controller.name)
+    controllers = [str(c) for c in cfg.eval.controllers]
+    unknown = [c for c in controllers if c not in LABELS]
+    if unknown:
+        raise ConfigError(
+            f"eval.controllers={controllers} is not allowed: choose from {sorted(LABELS)}."
+        )
+    gains: dict[str, dict[str, Any]] = {trained_with: adaptive_gains}
+    tags = {TRAIN_RUN_TAG: train_id}
+    if train_run.data.tags.get("armexp.tune_run"):
+        tags["armexp.tune_run"] = train_run.data.tags["armexp.tune_run"]
+    for name in controllers:
+        if name not in gains:
+            if name != "pid":
+                raise ConfigError(
+                    f"eval.controllers contains {name}, but the policy was trained with "
+                    f"{trained_with} and only pid can be added as a baseline."
+                )
+            gains[name], pid_tags = _pid_gains(cfg, train_cfg)
+            tags.update(pid_tags)
+    model_path = tracking.download_artifact(train_id, f"{MODEL_DIR}/{MODEL_FILE}", cfg)
+    policy = load_sac(str(model_path), None, train_cfg.agent)
+
+    with tracking.stage_run(cfg, "eval", run_name=cfg.eval.run_name, extra_tags=tags) as active:
+        for name in controllers:
+            mlflow.log_text(
+                yaml.safe_dump(gains[name], sort_keys=False), f"gains/{LABELS[name]}.yaml"
+            )
+        records = []
+        summary: dict[str, float] = {}
+        for name in controllers:
+            label = LABELS[name]
+            env = ReachEnv(settings_from_config(train_cfg, name, gains[name]), record=True)
+            n = env.n
+            lengths = env.settings.plant.arm.lengths_array
+            threshold = env.settings.reach_threshold
+            for index, (task, options) in enumerate(_targets(cfg, env)):
+                episode = rollout(
+                    env, policy, options, seed=int(cfg.seed) + index,
+                    deterministic=bool(cfg.eval.deterministic),
+                )  # fmt: skip
+                metrics = episode_metrics(episode, n, lengths, threshold)
+                records.append(
+                    {"controller": label, "task": task, "reason": episode.reason,
+                     "target_x": episode.target[0], "target_y": episode.target[1], **metrics}
+                )  # fmt: skip
+                if not task.startswith("random_"):
+                    mlflow.log_metrics(
+                        {f"{label}.{task}.{k}": v for k, v in metrics.items() if math.isfinite(v)}
+                    )
+                if not task.startswith("random_") or cfg.eval.random_trajectories:
+                    frame = pd.DataFrame(
+                        episode.rows, columns=[*trajectory_columns(n), "target_error"]
+                    )
+                    tracking.log_dataframe(frame, f"{task}.parquet", f"trajectories/{label}")
+            table = pd.DataFrame([r for r in records if r["controller"] == label])
+            summary.update(_aggregate(label, table))
+        frame = pd.DataFrame(records)
+        tracking.log_dataframe(frame, "episodes.csv")
+        mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
+        _print_table(active.info.run_id, frame)
+        return summary
+
+
+def _aggregate(label: str, table: pd.DataFrame) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for group, rows in (("random", table[table.task.str.startswith("random_")]),
+                        ("tasks", table[~table.task.str.startswith("random_")])):  # fmt: skip
+        if rows.empty:
+            continue
+        won = rows[rows.success > 0]
+        out[f"{label}.{group}.success_rate"] = float(rows.success.mean())
+        out[f"{label}.{group}.collision_rate"] = float(rows.collision.mean())
+        out[f"{label}.{group}.episodes"] = float(len(rows))
+        for key in ("target_time", "final_error_cm", "convergence_time"):
+            out[f"{label}.{group}.mean_{key}"] = float(won[key].mean()) if len(won) else math.nan
+        for key in ("rms_e1", "tip_rms_cm"):
+            out[f"{label}.{group}.mean_{key}"] = float(rows[key].mean())
+    return out
+
+
+def _print_table(run_id: str, frame: pd.DataFrame) -> None:
+    print(f"eval: run {run_id}")
+    for label, rows in frame.groupby("controller", sort=False):
+        rand = rows[rows.task.str.startswith("random_")]
+        tasks = rows[~rows.task.str.startswith("random_")]
+        line = f"  {label:<8}"
+        if len(rand):
+            line += (
+                f" random: success {rand.success.mean():.2f}, collisions "
+                f"{rand.collision.mean():.2f} ({len(rand)} targets)"
+            )
+        for _, r in tasks.iterrows():
+            shown = f"{r.target_time:.2f} s" if r.success else r.reason
+            line += f" | ({r.task}) {shown}"
+        print(line)

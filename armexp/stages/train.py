@@ -1,0 +1,204 @@
+"""`armexp train`: SAC (Algorithm 1) plans joint velocities with the tuned controller in the loop.
+
+Gains come from a tune run (``train.tune_run`` or the latest FINISHED tune run for the same
+controller and robot; its id is tagged ``armexp.tune_run``) or, with ``train.gains=config``, from
+``controller.gains`` (``controller.gains=paper`` selects that automatically).
+
+Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
+per episode, reward, length, success and collision with their rates over the last 100 episodes.
+Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
+buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
+and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
+FAILED run and continues from its checkpoint with the run's own config.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from typing import Any
+
+import mlflow
+import torch
+import yaml
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf
+from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.logger import Logger
+
+from armexp import tracking
+from armexp.agents.callbacks import (
+    CHECKPOINT_DIR,
+    MODEL_DIR,
+    MODEL_FILE,
+    STATE_FILE,
+    Budget,
+    Checkpoint,
+    EpisodeStats,
+    MLflowOutputFormat,
+    Progress,
+    log_model,
+)
+from armexp.agents.sac import ResumableSAC, build_sac, load_sac
+from armexp.agents.vec import make_vec_env
+from armexp.config import ConfigError
+from armexp.envs.factory import settings_from_config
+
+log = logging.getLogger(__name__)
+
+TUNE_RUN_TAG = "armexp.tune_run"
+GAINS_SOURCE_TAG = "armexp.gains_source"
+RESUMED_TAG = "armexp.resumed_from_step"
+
+
+def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
+    """The gains the agent trains with, in config form, and the lineage tags that say where
+    they came from."""
+    if cfg.train.gains == "config":
+        gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
+        assert isinstance(gains, dict)
+        return gains, {GAINS_SOURCE_TAG: "config"}
+    run, gains = tracking.tuned_gains(cfg, cfg.train.tune_run, key="train.tune_run")
+    print(f"train: gains from tune run {run.info.run_id}")
+    return gains, {GAINS_SOURCE_TAG: "tune", TUNE_RUN_TAG: run.info.run_id}
+
+
+def step_budget(cfg: DictConfig) -> int:
+    """Upper bound on environment steps: every episode at full length, or ``max_env_steps``."""
+    bound = int(cfg.agent.episodes) * int(cfg.env.max_steps)
+    cap = cfg.agent.max_env_steps
+    return bound if cap is None else min(bound, int(cap))
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    if cfg.train.resume:
+        return resume(cfg)
+    gains, tags = controller_gains_for(cfg)
+    with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
+        mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
+        return _learn(cfg, gains, active.info.run_id, model_path=None, state={})
+
+
+def resume(cfg: DictConfig) -> dict[str, float]:
+    """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run."""
+    run_id = str(cfg.train.resume)
+    client = MlflowClient(tracking.store_uri(cfg))
+    try:
+        old = client.get_run(run_id)
+    except Exception:
+        raise ConfigError(
+            f"train.resume={run_id} is not allowed: no run with that id exists in the store "
+            f"{tracking.store_uri(cfg)}."
+        ) from None
+    if old.data.tags.get(tracking.STAGE_TAG) != "train":
+        raise ConfigError(
+            f"train.resume={run_id} is not allowed: it is a "
+            f"{old.data.tags.get(tracking.STAGE_TAG) or 'non-armexp'} run, not a train run."
+        )
+    if old.info.status == "FINISHED":
+        raise ConfigError(
+            f"train.resume={run_id} is not allowed: that run FINISHED; only KILLED or FAILED "
+            "runs can be resumed."
+        )
+    try:
+        state_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{STATE_FILE}", cfg)
+    except Exception:
+        raise ConfigError(
+            f"train.resume={run_id} is not allowed: that run has no checkpoint yet (it stopped "
+            "before its first one); start a new run instead."
+        ) from None
+    state = json.loads(state_path.read_text())
+    model_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{MODEL_FILE}", cfg)
+    original = OmegaConf.load(tracking.download_artifact(run_id, "config.yaml", cfg))
+    assert isinstance(original, DictConfig)
+    original.tracking = cfg.tracking
+    original.train.progress = cfg.train.progress
+    gains = yaml.safe_load(tracking.download_artifact(run_id, "gains.yaml", cfg).read_text())
+    print(f"train: resuming run {run_id} from step {state['num_timesteps']}")
+    with tracking.stage_run(
+        original,
+        "train",
+        resume_run_id=run_id,
+        extra_tags={RESUMED_TAG: str(state["num_timesteps"])},
+    ):
+        return _learn(original, gains, run_id, model_path=str(model_path), state=state)
+
+
+def _learn(
+    cfg: DictConfig,
+    gains: dict[str, Any],
+    run_id: str,
+    model_path: str | None,
+    state: dict[str, Any],
+) -> dict[str, float]:
+    agent, tr = cfg.agent, cfg.train
+    if tr.torch_threads:
+        torch.set_num_threads(int(tr.torch_threads))
+    settings = settings_from_config(cfg, gains=gains)
+    venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
+    model: ResumableSAC
+    if model_path is None:
+        model = build_sac(agent, venv, int(cfg.seed))
+    else:
+        model = load_sac(model_path, venv, agent)
+        model.resumed = True
+        # Refill the empty replay buffer with the policy before updates resume.
+        model.learning_starts = model.num_timesteps + int(agent.learning_starts)
+    model.set_logger(Logger(folder=None, output_formats=[MLflowOutputFormat(run_id)]))
+    done_steps = int(state.get("num_timesteps", 0))
+    total = step_budget(cfg)
+    stats = EpisodeStats(run_id, int(tr.log_every), start_episode=int(state.get("episodes", 0)))
+    stats.wall_offset = float(state.get("wall_s", 0.0))
+    minutes = agent.max_minutes
+    budget = Budget(
+        stats, int(agent.episodes), total, None if minutes is None else float(minutes) * 60.0
+    )
+
+    def snapshot() -> dict[str, Any]:
+        return {
+            "num_timesteps": int(model.num_timesteps),
+            "episodes": stats.episodes,
+            "wall_s": stats.wall(),
+        }
+
+    checkpoint = Checkpoint(int(tr.checkpoint_every), snapshot)
+    callbacks: list[Any] = [stats, budget, checkpoint]
+    if tr.progress:
+        callbacks.append(Progress(total, stats, initial=done_steps))
+    started = time.perf_counter()
+    try:
+        model.learn(
+            total_timesteps=max(total - done_steps, 0),
+            callback=CallbackList(callbacks),
+            log_interval=4,
+            reset_num_timesteps=model_path is None,
+        )
+    except BaseException:
+        # Interrupted or failed: keep what was learned so `train.resume` can continue it.
+        stats.flush()
+        checkpoint.save()
+        raise
+    finally:
+        venv.close()
+    elapsed = time.perf_counter() - started
+    stats.flush()
+    checkpoint.save()
+    log_model(model, MODEL_DIR, snapshot())
+    steps = int(model.num_timesteps)
+    summary = {
+        "final/env_steps": float(steps),
+        "final/episodes": float(stats.episodes),
+        "final/success_rate_100": stats.success_rate,
+        "final/collision_rate_100": stats.collision_rate,
+        "final/wall_s": stats.wall(),
+        "final/env_steps_per_s": (steps - done_steps) / elapsed if elapsed > 0 else 0.0,
+    }
+    mlflow.log_metrics(summary)
+    mlflow.set_tag("armexp.stop_reason", budget.reason or "steps")
+    print(
+        f"train: run {run_id} | {steps} steps, {stats.episodes} episodes in "
+        f"{stats.wall():.0f} s | success (last 100) {stats.success_rate:.2f}, collisions "
+        f"{stats.collision_rate:.2f} | stopped on {budget.reason or 'steps'}"
+    )
+    return summary
