@@ -195,6 +195,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     try:
         app()
+    except SystemExit as exc:  # a user error found at run time (exit 2), or Hydra's own exit
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
     except KeyboardInterrupt:
         print(f"armexp {stage}: interrupted; the MLflow run is marked KILLED.", file=sys.stderr)
         return EXIT_INTERRUPTED

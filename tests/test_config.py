@@ -72,7 +72,7 @@ def test_default_config_values_match_the_paper(compose: Callable[..., DictConfig
 def test_gains_preset_override_and_experiment_preset(compose: Callable[..., DictConfig]) -> None:
     assert compose("controller.gains=paper").controller.gains.a0 == 668.0
     smoke = compose("experiment=smoke")
-    assert smoke.tuner.name == "cso_fast" and smoke.agent.name == "sac_fast"
+    assert smoke.tuner.name == "cso_fast" and smoke.agent.name == "sac_smoke"
 
 
 @pytest.mark.parametrize(

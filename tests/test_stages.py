@@ -47,7 +47,7 @@ def test_help_lists_every_stage(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_unbuilt_stage_and_unknown_stage_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["train"]) == 2
+    assert main(["report"]) == 2
     assert "not built yet" in capsys.readouterr().err
     assert main(["fly"]) == 2
     assert "stage=fly is not a known stage" in capsys.readouterr().err

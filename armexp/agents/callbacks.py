@@ -200,3 +200,56 @@ class Budget(BaseCallback):
         elif self.seconds is not None and self.stats.wall() >= self.seconds:
             self.reason = "time"
         return not self.reason
+
+
+class HeldOutEval(BaseCallback):
+    """Every ``every`` environment steps, the deterministic policy on fixed held-out targets:
+    logs ``eval/success_rate``, ``eval/collision_rate`` and ``eval/mean_return`` against the
+    step, with ``eval/wall_s`` the training wall time so far. The time spent here is taken off
+    the training clock, so a wall-time budget counts training only."""
+
+    def __init__(
+        self,
+        run_id: str,
+        every: int,
+        env: Any,
+        targets: list[np.ndarray],
+        stats: EpisodeStats,
+    ) -> None:
+        super().__init__()
+        self.run_id = run_id
+        self.every = every
+        self.env = env
+        self.targets = targets
+        self.stats = stats
+        self.client = MlflowClient()
+        self._last = 0
+        self.history: list[dict[str, float]] = []
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps - self._last >= self.every:
+            self.evaluate()
+        return True
+
+    def evaluate(self) -> dict[str, float]:
+        from armexp.agents.rollout import rollout
+
+        self._last = self.num_timesteps
+        started = time.perf_counter()
+        reasons, returns = [], []
+        for i, target in enumerate(self.targets):
+            episode = rollout(self.env, self.model, {"target": target}, seed=i)
+            reasons.append(episode.reason)
+            returns.append(episode.episode_return)
+        self.stats.wall_offset -= time.perf_counter() - started
+        point = {
+            "eval/success_rate": float(np.mean([r == "reached" for r in reasons])),
+            "eval/collision_rate": float(np.mean([r == "collision" for r in reasons])),
+            "eval/mean_return": float(np.mean(returns)),
+            "eval/wall_s": self.stats.wall(),
+        }
+        self.history.append({"step": float(self.num_timesteps), **point})
+        now = int(time.time() * 1000)
+        metrics = [Metric(k, v, now, self.num_timesteps) for k, v in point.items()]
+        retry(lambda: self.client.log_batch(self.run_id, metrics=metrics))
+        return point

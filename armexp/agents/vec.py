@@ -17,7 +17,7 @@ def make_vec_env(settings: ReachSettings, n_envs: int, kind: str, seed: int) -> 
     the network update dominates); ``"subproc"`` gives each its own process.
     """
 
-    def factory() -> Callable[[], gym.Env]:  # type: ignore[type-arg]
+    def factory() -> Callable[[], gym.Env]:
         return lambda: ReachEnv(settings)
 
     fns = [factory() for _ in range(n_envs)]

@@ -265,6 +265,12 @@ class TrainStageConfig:
     resume: str | None = None
     checkpoint_every: int = checked(10_000, at_least(1))
     log_every: int = checked(2_000, at_least(1))
+    #: Held-out evaluation while training: every ``eval_every`` steps (0: never), the
+    #: deterministic policy on ``eval_targets`` random targets drawn with ``eval_seed`` (kept
+    #: apart from `armexp eval`'s ``tasks.random_seed``). Its time is not training time.
+    eval_every: int = checked(0, at_least(0))
+    eval_targets: int = checked(50, at_least(1))
+    eval_seed: int = checked(10_007, at_least(0))
     progress: bool = True
     torch_threads: int | None = None
 

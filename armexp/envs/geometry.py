@@ -28,7 +28,7 @@ def joint_positions(q: Array, lengths: Array) -> Array:
 def clearance(points: Array, obstacles: Array) -> Array:
     """Distance from each point (..., 2) to each obstacle's surface (..., m); < 0 inside."""
     if obstacles.shape[0] == 0:
-        return np.zeros(points.shape[:-1] + (0,))
+        return np.zeros((*points.shape[:-1], 0))
     d = points[..., None, :] - obstacles[:, :2]
     return np.sqrt((d**2).sum(-1)) - obstacles[:, 2]
 
@@ -45,9 +45,6 @@ def segment_hits(p0: Array, p1: Array, obstacles: Array) -> bool:
     c = obstacles[:, :2]
     seg = p1 - p0
     length2 = float(seg @ seg)
-    if length2 > 0.0:
-        s = np.clip(((c - p0) @ seg) / length2, 0.0, 1.0)
-    else:
-        s = np.zeros(c.shape[0])
+    s = np.clip(((c - p0) @ seg) / length2, 0.0, 1.0) if length2 > 0 else np.zeros(c.shape[0])
     nearest = p0 + s[:, None] * seg
     return bool((((c - nearest) ** 2).sum(1) < obstacles[:, 2] ** 2).any())

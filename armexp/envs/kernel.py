@@ -75,7 +75,7 @@ def observe(
 def env_step(
     state: np.ndarray,
     work: np.ndarray,
-    model: tuple,  # type: ignore[type-arg]
+    model: tuple,
     gains: np.ndarray,
     kind: int,
     dt: float,

@@ -8,6 +8,7 @@ one compiled call of `armexp.sim.core`.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -66,7 +67,7 @@ class ReachSettings:
                 f"env.action_period={self.action_period} is not allowed: it must be a whole "
                 f"number of controller periods ({self.plant.dt} s)."
             )
-        return int(round(steps))
+        return round(steps)
 
     def workspace(self, max_time: float | None = None) -> Workspace:
         return build_workspace(
@@ -124,7 +125,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     obstacles and target.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 33}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 33}  # noqa: RUF012
 
     def __init__(
         self, settings: ReachSettings, render_mode: str | None = None, record: bool = False
@@ -229,7 +230,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             self.reason = "time_limit"
         return obs, float(reward), terminated, truncated, self._info()
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
             return None
         if self._canvas is None:
@@ -241,7 +242,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         c.ring(tuple(self.target), self.settings.reach_threshold, (40, 170, 60))
         c.disc(tuple(self.target), 0.015, (40, 170, 60))
         pts = joint_positions(self.sim.q.copy(), self._lengths)
-        for p0, p1 in zip(pts[:-1], pts[1:], strict=True):
+        for p0, p1 in itertools.pairwise(pts):
             c.segment(tuple(p0), tuple(p1), 0.025, (50, 60, 80))
         for p in pts[:-1]:
             c.disc(tuple(p), 0.035, (120, 130, 150))

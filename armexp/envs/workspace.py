@@ -77,7 +77,7 @@ def travel_times(
     axes = [np.arange(lower[j], upper[j] + 1e-12, bound[j] * dt) for j in range(n)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
     tip = tips(grid, lengths)
-    free = (clearance(tip, obstacles) > path_margin).all(-1)
+    free: np.ndarray = np.asarray((clearance(tip, obstacles) > path_margin).all(-1))
     start = tuple(
         int(np.clip(np.rint((q0[j] - lower[j]) / (bound[j] * dt)), 0, len(axes[j]) - 1))
         for j in range(n)
@@ -103,12 +103,14 @@ def travel_times(
 
 
 @lru_cache(maxsize=16)
-def _cached(key: tuple) -> Workspace:  # type: ignore[type-arg]
+def _cached(key: tuple) -> Workspace:
     (lengths, lower, upper, q0, bound, obstacles, path_margin, target_margin, min_distance,
      max_time, cells, resolution) = key  # fmt: skip
     arr = [np.asarray(v, dtype=np.float64) for v in (lengths, lower, upper, q0, bound)]
     obs = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
-    axes, times, dt = travel_times(*arr, obs, path_margin, max_time, cells)
+    axes, times, dt = travel_times(
+        arr[0], arr[1], arr[2], arr[3], arr[4], obs, path_margin, max_time, cells
+    )
     reached = np.isfinite(times)
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)[reached]
     t = times[reached]

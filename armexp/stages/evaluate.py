@@ -61,7 +61,7 @@ def _pid_gains(cfg: DictConfig, train_cfg: DictConfig) -> tuple[dict[str, Any], 
             OmegaConf.load(config_dir() / "controller" / "gains" / "pid_default.yaml")
         )
         assert isinstance(gains, dict)
-        return gains, {}
+        return {str(k): v for k, v in gains.items()}, {}
     run, gains = tracking.tuned_gains(
         train_cfg, cfg.eval.pid_tune_run, key="eval.pid_tune_run", controller="pid"
     )

@@ -20,6 +20,7 @@ import time
 from typing import Any
 
 import mlflow
+import numpy as np
 import torch
 import yaml
 from mlflow.tracking import MlflowClient
@@ -36,6 +37,7 @@ from armexp.agents.callbacks import (
     Budget,
     Checkpoint,
     EpisodeStats,
+    HeldOutEval,
     MLflowOutputFormat,
     Progress,
     log_model,
@@ -44,6 +46,7 @@ from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
+from armexp.envs.reach import ReachEnv
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +61,7 @@ def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str
     if cfg.train.gains == "config":
         gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
         assert isinstance(gains, dict)
-        return gains, {GAINS_SOURCE_TAG: "config"}
+        return {str(k): v for k, v in gains.items()}, {GAINS_SOURCE_TAG: "config"}
     run, gains = tracking.tuned_gains(cfg, cfg.train.tune_run, key="train.tune_run")
     print(f"train: gains from tune run {run.info.run_id}")
     return gains, {GAINS_SOURCE_TAG: "tune", TUNE_RUN_TAG: run.info.run_id}
@@ -164,6 +167,11 @@ def _learn(
 
     checkpoint = Checkpoint(int(tr.checkpoint_every), snapshot)
     callbacks: list[Any] = [stats, budget, checkpoint]
+    if tr.eval_every:
+        probe = ReachEnv(settings)
+        rng = np.random.default_rng(int(tr.eval_seed))
+        targets = [probe.workspace.sample(rng) for _ in range(int(tr.eval_targets))]
+        callbacks.append(HeldOutEval(run_id, int(tr.eval_every), probe, targets, stats))
     if tr.progress:
         callbacks.append(Progress(total, stats, initial=done_steps))
     started = time.perf_counter()

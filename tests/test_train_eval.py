@@ -1,0 +1,186 @@
+"""armexp train and armexp eval on a real MLflow store: lineage, metrics, artifacts, resume."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import mlflow
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from mlflow.tracking import MlflowClient
+
+from armexp.agents.callbacks import EpisodeStats
+from armexp.agents.sac import ResumableSAC
+from armexp.cli import main
+from armexp.sim.core import trajectory_columns
+
+SMALL_TUNE = ["tuner=cso_fast", "tuner.n_iterations=2", "tuner.objective.n_scenarios=2",
+              "tuner.objective.horizon=0.2"]  # fmt: skip
+SMALL_TRAIN = ["agent=sac_smoke", "agent.max_env_steps=600", "agent.learning_starts=100",
+               "agent.net_arch=[32,32]", "train.checkpoint_every=200", "train.progress=false",
+               "env.max_steps=100"]  # fmt: skip
+
+
+def _client(runs_dir: Path) -> MlflowClient:
+    return MlflowClient(f"sqlite:///{runs_dir}/mlflow.db")
+
+
+def _runs(runs_dir: Path, stage: str) -> list[Any]:
+    client = _client(runs_dir)
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    return client.search_runs(
+        [exp.experiment_id],
+        filter_string=f"tags.`armexp.stage` = '{stage}'",
+        order_by=["attributes.start_time DESC"],
+    )
+
+
+def _download(runs_dir: Path, run_id: str, path: str, dst: Path) -> Path:
+    mlflow.set_tracking_uri(f"sqlite:///{runs_dir}/mlflow.db")
+    return Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path,
+                                                    dst_path=str(dst)))  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """tune (adaptive, PID) → train → eval on one temporary store."""
+    runs = tmp_path_factory.mktemp("store") / "runs"
+    where = f"tracking.runs_dir={runs}"
+    assert main(["tune", *SMALL_TUNE, where]) == 0
+    assert main(["tune", "controller=pid", *SMALL_TUNE, where]) == 0
+    assert main(["train", *SMALL_TRAIN, where]) == 0
+    assert main(["eval", "tasks.n_random=2", where]) == 0
+    return runs
+
+
+def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(
+    store: Path, tmp_path: Path
+) -> None:
+    (train,) = _runs(store, "train")
+    adaptive_tune = next(
+        r for r in _runs(store, "tune") if r.data.params["controller.name"] == "subsystem_adaptive"
+    )
+    assert train.info.status == "FINISHED"
+    assert train.data.tags["armexp.tune_run"] == adaptive_tune.info.run_id
+    m = train.data.metrics
+    assert m["final/env_steps"] == 600
+    client = _client(store)
+    # SB3's own metrics and the per-episode ones, streamed with their step.
+    assert client.get_metric_history(train.info.run_id, "train/actor_loss")
+    episodes = client.get_metric_history(train.info.run_id, "episode/reward")
+    assert len(episodes) == m["final/episodes"] >= 1
+    assert all(0 < e.step <= 600 for e in episodes)
+    gains = yaml.safe_load(_download(store, train.info.run_id, "gains.yaml", tmp_path).read_text())
+    tuned = yaml.safe_load(
+        _download(store, adaptive_tune.info.run_id, "gains.yaml", tmp_path / "t").read_text()
+    )
+    assert gains == tuned
+    model = ResumableSAC.load(str(_download(store, train.info.run_id, "model/model.zip",
+                                            tmp_path / "m")))  # fmt: skip
+    assert model.num_timesteps == 600
+    action, _ = model.predict(np.zeros(13, dtype=np.float32), deterministic=True)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1)
+
+
+def test_eval_logs_per_task_metrics_and_trajectories_for_both_controllers(
+    store: Path, tmp_path: Path
+) -> None:
+    (ev,) = _runs(store, "eval")
+    (train,) = _runs(store, "train")
+    pid_tune = next(r for r in _runs(store, "tune") if r.data.params["controller.name"] == "pid")
+    assert ev.info.status == "FINISHED"
+    assert ev.data.tags["armexp.train_run"] == train.info.run_id
+    assert ev.data.tags["armexp.pid_tune_run"] == pid_tune.info.run_id
+    m = ev.data.metrics
+    for label in ("adaptive", "pid"):
+        for task in "abcd":
+            for key in ("success", "final_error_cm", "rms_e1", "tip_rms_cm", "max_abs_tau_1",
+                        "max_abs_tau_2", "collision", "steps"):  # fmt: skip
+                assert f"{label}.{task}.{key}" in m, (label, task, key)
+            path = _download(store, ev.info.run_id, f"trajectories/{label}/{task}.parquet",
+                             tmp_path / label)  # fmt: skip
+            frame = pd.read_parquet(path)
+            assert list(frame.columns) == [*trajectory_columns(2), "target_error"]
+            assert len(frame) == 30 * m[f"{label}.{task}.steps"]
+            np.testing.assert_allclose(np.diff(frame.t.to_numpy()), 1e-3, rtol=1e-6)
+            assert frame.target_error.iloc[-1] * 100 == pytest.approx(
+                m[f"{label}.{task}.final_error_cm"], abs=2.0
+            )
+        assert m[f"{label}.random.episodes"] == 2
+    table = pd.read_csv(_download(store, ev.info.run_id, "episodes.csv", tmp_path))
+    assert len(table) == 2 * (4 + 2)
+    # Both controllers see the same targets.
+    a = table[table.controller == "adaptive"].set_index("task")
+    p = table[table.controller == "pid"].set_index("task")
+    np.testing.assert_array_equal(a.target_x, p.target_x)
+
+
+def test_eval_without_a_train_run_is_one_sentence(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["eval", f"tracking.runs_dir={runs_dir}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "eval.train_run" in err and "armexp train" in err
+
+
+def test_train_with_paper_gains_needs_no_tune_run(runs_dir: Path) -> None:
+    rc = main(["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150",
+               f"tracking.runs_dir={runs_dir}"])  # fmt: skip
+    assert rc == 0
+    (run,) = _runs(runs_dir, "train")
+    assert run.data.tags["armexp.gains_source"] == "config"
+    assert "armexp.tune_run" not in run.data.tags
+
+
+def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
+    runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    where = f"tracking.runs_dir={runs_dir}"
+    original = EpisodeStats._on_step
+
+    def interrupt_at_450(self: EpisodeStats) -> bool:
+        if self.num_timesteps >= 450:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(EpisodeStats, "_on_step", interrupt_at_450)
+    rc = main(["train", "controller.gains=paper", *SMALL_TRAIN, "train.checkpoint_every=100000",
+               where])  # fmt: skip
+    assert rc == 130
+    (run,) = _runs(runs_dir, "train")
+    assert run.info.status == "KILLED"
+    state = json.loads(
+        _download(runs_dir, run.info.run_id, "checkpoint/state.json", tmp_path).read_text()
+    )
+    assert state["num_timesteps"] == 450
+    monkeypatch.setattr(EpisodeStats, "_on_step", original)
+    assert main(["train", f"train.resume={run.info.run_id}", where]) == 0
+    (resumed,) = _runs(runs_dir, "train")
+    assert resumed.info.run_id == run.info.run_id and resumed.info.status == "FINISHED"
+    assert resumed.data.tags["armexp.resumed_from_step"] == "450"
+    assert resumed.data.metrics["final/env_steps"] == 600
+    final = json.loads(
+        _download(runs_dir, run.info.run_id, "model/state.json", tmp_path / "f").read_text()
+    )
+    assert final["num_timesteps"] == 600
+    steps = [m.step for m in _client(runs_dir).get_metric_history(run.info.run_id,
+                                                                  "episode/length")]  # fmt: skip
+    assert steps == sorted(steps)
+
+
+def test_resume_of_a_finished_run_is_refused(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    where = f"tracking.runs_dir={runs_dir}"
+    assert main(["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=120",
+                 where]) == 0  # fmt: skip
+    (run,) = _runs(runs_dir, "train")
+    capsys.readouterr()
+    assert main(["train", f"train.resume={run.info.run_id}", where]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "FINISHED" in err and err.count("\n") == 0
