@@ -31,14 +31,23 @@ def typecheck(session: nox.Session) -> None:
 @nox.session
 def bench(session: nox.Session) -> None:
     """Print the performance figures named in the issues."""
-    session.install(*INSTALL)
+    session.install("-c", "constraints.txt", "-e", ".[dev,bench]")
     session.run("python", "benchmarks/sim_speed.py")
     session.run("python", "benchmarks/tune_speed.py")
+    session.run("python", "benchmarks/env_speed.py")
+
+
+@nox.session
+def competence(session: nox.Session) -> None:
+    """Time to competence of experiment=quick (about 25 minutes on 2 cores)."""
+    session.install(*INSTALL)
+    session.run("python", "benchmarks/time_to_competence.py", *session.posargs)
 
 
 @nox.session
 def demo(session: nox.Session) -> None:
-    """Small end-to-end run into ./runs: tune both controllers, simulate with each."""
+    """Small end-to-end run into ./runs: tune both controllers, train, evaluate."""
     session.install(*INSTALL)
     session.run("armexp", "tune", "experiment=smoke", "-m", "controller=subsystem_adaptive,pid")
-    session.run("armexp", "simulate", "-m", "controller=subsystem_adaptive,pid")
+    session.run("armexp", "train", "experiment=smoke")
+    session.run("armexp", "eval", "experiment=smoke")

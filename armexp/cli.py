@@ -193,6 +193,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         f"hydra.job.name={stage}",
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
+    _terminate_as_interrupt()
     try:
         app()
     except SystemExit as exc:  # a user error found at run time (exit 2), or Hydra's own exit
@@ -202,6 +203,20 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         print(f"armexp {stage}: interrupted; the MLflow run is marked KILLED.", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def _terminate_as_interrupt() -> None:
+    """SIGTERM (a scheduler's stop, `kill`) ends a stage like Ctrl-C: run KILLED, state kept."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -89,6 +89,11 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["nonsense_key=1"], ["nonsense_key", "not a config key"]),
         (["scenario.kind=zigzag"], ["scenario.kind='zigzag'", "switching, hold, sine"]),
         (["seed=0,1"], ["-m"]),
+        (["env.action_period=0.0305"], ["env.action_period=0.0305", "whole number"]),
+        (["tuner.objective.switch_period=0.0005"], ["switch_period=0.0005", "controller.dt"]),
+        (["agent.vec_env=threads"], ["agent.vec_env='threads'", "dummy, subproc"]),
+        (["train.gains=best"], ["train.gains='best'", "tuned, config"]),
+        (["agent.n_envs=0"], ["agent.n_envs=0", "≥ 1"]),
     ],
 )
 def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:

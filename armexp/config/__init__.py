@@ -235,8 +235,15 @@ def _cross_checks(cfg: DictConfig) -> None:
     has_scenario = scenario is not None and not OmegaConf.is_missing(cfg, "scenario")
     if has_scenario and len(scenario.offset) not in (1, n):
         raise fail("scenario.offset", list(scenario.offset), f"give 1 or {n} values")
+    dt = float(ctrl.dt)
+    env = cfg.get("env")
+    if env is not None and not OmegaConf.is_missing(cfg, "env"):
+        _need_whole_periods("env.action_period", float(env.action_period), dt)
     tuner = cfg.get("tuner")
     if tuner is not None and not OmegaConf.is_missing(cfg, "tuner"):
+        _need_whole_periods(
+            "tuner.objective.switch_period", float(tuner.objective.switch_period), dt
+        )
         obj = tuner.objective
         if not obj.rise_low < obj.rise_high:
             raise fail(
@@ -244,6 +251,14 @@ def _cross_checks(cfg: DictConfig) -> None:
                 obj.rise_low,
                 f"it must be below tuner.objective.rise_high={obj.rise_high}",
             )
+
+
+def _need_whole_periods(key: str, value: float, dt: float) -> None:
+    periods = value / dt
+    if abs(periods - round(periods)) > 1e-9 or round(periods) < 1:
+        raise fail(
+            key, value, f"it must be a whole number of controller periods (controller.dt={dt})"
+        )
 
 
 def _need_len(key: str, value: Any, n: int) -> None:

@@ -1,0 +1,61 @@
+"""Table III's per-episode quantities, measured on a scripted policy with a known outcome."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from armexp.agents.rollout import episode_metrics, rollout
+from armexp.config import compose_config
+from armexp.envs.factory import settings_from_config
+from armexp.envs.reach import ReachEnv
+
+
+class Constant:
+    """A policy with SB3's ``predict`` that always returns the same action."""
+
+    def __init__(self, action: list[float]) -> None:
+        self.action = np.asarray(action, dtype=np.float32)
+
+    def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        return self.action, None
+
+
+@pytest.fixture(scope="module")
+def env() -> ReachEnv:
+    return ReachEnv(settings_from_config(compose_config(["obstacles=none"])), record=True)
+
+
+def test_metrics_of_a_scripted_reach(env: ReachEnv) -> None:
+    policy = Constant([0.5, -1.0])
+    # Where the tip is after 40 actions of this policy: put the target there.
+    env.reset(seed=0, options={"target": (-1.0, -1.0)})
+    for _ in range(40):
+        env.step(policy.action)
+    target = env.tip.copy()
+    episode = rollout(env, policy, {"target": target}, seed=0)
+    m = episode_metrics(episode, env.n, env.settings.plant.arm.lengths_array, 0.04)
+    assert episode.reason == "reached" and m["success"] == 1.0 and m["collision"] == 0.0
+    # Reached a little before step 40 (within the 4 cm threshold), first seen at 1 kHz.
+    assert 0.6 < m["target_time"] <= m["steps"] * 0.03 <= 40 * 0.03
+    assert m["final_error_cm"] < 4.0
+    rows = episode.rows
+    first = np.argmax(rows[:, -1] < 0.04)
+    assert m["target_time"] == pytest.approx(rows[first, 0])
+    assert m["max_abs_tau_1"] == pytest.approx(np.abs(rows[:, 9]).max())
+    assert m["rms_e1"] < 0.01  # the tuned loop tracks the planned velocities closely
+    assert m["tip_rms_cm"] < 1.0
+    assert m["return"] == pytest.approx(episode.episode_return)
+
+
+def test_metrics_of_a_miss(env: ReachEnv) -> None:
+    env_short = ReachEnv(
+        settings_from_config(compose_config(["obstacles=none", "env.max_steps=20"])), record=True
+    )
+    episode = rollout(env_short, Constant([0.0, 0.0]), {"target": (0.5, -0.5)}, seed=1)
+    m = episode_metrics(episode, 2, env_short.settings.plant.arm.lengths_array, 0.04)
+    assert episode.reason == "time_limit" and m["success"] == 0.0
+    assert np.isnan(m["target_time"])
+    start_error = np.hypot(1.0 - 0.5, 0.8 + 0.5) * 100
+    assert m["final_error_cm"] == pytest.approx(start_error, abs=0.5)
+    assert m["steps"] == 20 and len(episode.rows) == 600
