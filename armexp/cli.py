@@ -30,7 +30,7 @@ STAGES: dict[str, tuple[str | None, str]] = {
         "armexp.stages.evaluate",
         "tasks (a)-(d) and held-out targets, proposed controller and PID",
     ),
-    "report": (None, "Tables I-III and Figures 3-6 from stored runs"),
+    "report": ("armexp.stages.report", "Tables I-III and Figures 3-6 from stored runs"),
     "pipeline": (None, "tune -> train -> eval -> report under one parent run"),
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
 }

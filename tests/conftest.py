@@ -6,7 +6,10 @@ from pathlib import Path
 import pytest
 from omegaconf import DictConfig
 
+from armexp.cli import main
 from armexp.config import compose_config
+
+from tests.helpers import SMALL_TRAIN, SMALL_TUNE
 
 
 @pytest.fixture
@@ -23,3 +26,15 @@ def compose(runs_dir: Path) -> Callable[..., DictConfig]:
         return compose_config([*overrides, f"tracking.runs_dir={runs_dir}"])
 
     return _compose
+
+
+@pytest.fixture(scope="session")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A store written by short real runs: tune (adaptive, PID) → train → eval (runs folder)."""
+    runs = tmp_path_factory.mktemp("store") / "runs"
+    where = f"tracking.runs_dir={runs}"
+    assert main(["tune", *SMALL_TUNE, where]) == 0
+    assert main(["tune", "controller=pid", *SMALL_TUNE, where]) == 0
+    assert main(["train", *SMALL_TRAIN, where]) == 0
+    assert main(["eval", "tasks.n_random=2", where]) == 0
+    return runs

@@ -46,6 +46,13 @@ def test_metrics_of_a_scripted_reach(env: ReachEnv) -> None:
     assert m["rms_e1"] < 0.01  # the tuned loop tracks the planned velocities closely
     assert m["tip_rms_cm"] < 1.0
     assert m["return"] == pytest.approx(episode.episode_return)
+    # Convergence: after t_c the tracking error stays within the second half's largest value,
+    # and just before t_c it was outside.
+    e1 = np.hypot(rows[:, 1] - rows[:, 3], rows[:, 2] - rows[:, 4])
+    ball = e1[len(e1) // 2 :].max()
+    k = int(np.searchsorted(rows[:, 0], m["convergence_time"]))
+    assert 0 < m["convergence_time"] <= rows[len(rows) // 2, 0]
+    assert e1[k:].max() <= ball and e1[k - 1] > ball
 
 
 def test_metrics_of_a_miss(env: ReachEnv) -> None:

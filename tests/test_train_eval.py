@@ -18,11 +18,7 @@ from armexp.agents.sac import ResumableSAC
 from armexp.cli import main
 from armexp.sim.core import trajectory_columns
 
-SMALL_TUNE = ["tuner=cso_fast", "tuner.n_iterations=2", "tuner.objective.n_scenarios=2",
-              "tuner.objective.horizon=0.2"]  # fmt: skip
-SMALL_TRAIN = ["agent=sac_smoke", "agent.max_env_steps=600", "agent.learning_starts=100",
-               "agent.net_arch=[32,32]", "train.checkpoint_every=200", "train.progress=false",
-               "env.max_steps=100"]  # fmt: skip
+from tests.helpers import SMALL_TRAIN
 
 
 def _client(runs_dir: Path) -> MlflowClient:
@@ -44,18 +40,6 @@ def _download(runs_dir: Path, run_id: str, path: str, dst: Path) -> Path:
     mlflow.set_tracking_uri(f"sqlite:///{runs_dir}/mlflow.db")
     return Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path,
                                                     dst_path=str(dst)))  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """tune (adaptive, PID) → train → eval on one temporary store."""
-    runs = tmp_path_factory.mktemp("store") / "runs"
-    where = f"tracking.runs_dir={runs}"
-    assert main(["tune", *SMALL_TUNE, where]) == 0
-    assert main(["tune", "controller=pid", *SMALL_TUNE, where]) == 0
-    assert main(["train", *SMALL_TRAIN, where]) == 0
-    assert main(["eval", "tasks.n_random=2", where]) == 0
-    return runs
 
 
 def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(

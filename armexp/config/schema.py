@@ -292,6 +292,22 @@ class EvalStageConfig:
 
 
 @dataclass
+class ReportStageConfig:
+    run_name: str | None = None
+    #: Where the report folder goes (None: ``<tracking.runs_dir>/report``).
+    out_dir: str | None = None
+    #: Run selection, first that is set wins: explicit eval run ids, the eval runs of one pipeline
+    #: parent run, an MLflow filter on eval runs (e.g. ``tags.sweep = 'seeds'``); none set: the
+    #: latest pipeline's eval runs, else the latest eval run.
+    eval_runs: list[str] = field(default_factory=list)
+    pipeline_run: str | None = None
+    filter: str | None = None
+    #: Experiment to read (None: ``tracking.experiment``).
+    experiment: str | None = None
+    fig6_task: str = "a"
+
+
+@dataclass
 class ArmexpConfig:
     """The root config every stage composes (``conf/config.yaml``)."""
 
@@ -309,6 +325,7 @@ class ArmexpConfig:
     tune: TuneStageConfig = field(default_factory=TuneStageConfig)
     train: TrainStageConfig = field(default_factory=TrainStageConfig)
     eval: EvalStageConfig = field(default_factory=EvalStageConfig)
+    report: ReportStageConfig = field(default_factory=ReportStageConfig)
 
 
 SCHEMAS: dict[str, type] = {

@@ -1,0 +1,1 @@
+"""Tables and figures computed from MLflow data alone (pandas, matplotlib; no simulation)."""

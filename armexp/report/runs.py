@@ -1,0 +1,154 @@
+"""Which MLflow runs a report is made of, and reading them into pandas through MLflow's API.
+
+A report starts from eval runs and follows their lineage tags upstream: ``armexp.train_run`` to
+the policy's train run, ``armexp.tune_run`` / ``armexp.pid_tune_run`` to the tune runs whose gains
+were used. Nothing here imports the simulation, environment or agent code.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mlflow
+import pandas as pd
+import yaml
+from mlflow.entities import Run
+from mlflow.tracking import MlflowClient
+
+from armexp.config import ConfigError
+
+STAGE_TAG = "armexp.stage"
+PARENT_TAG = "mlflow.parentRunId"
+TASKS = ("a", "b", "c", "d")
+CONTROLLERS = ("adaptive", "pid")
+
+
+@dataclass
+class Selection:
+    """The eval runs of a report and the upstream runs they name."""
+
+    evals: list[Run]
+    trains: dict[str, Run] = field(default_factory=dict)
+    tunes: dict[str, Run] = field(default_factory=dict)
+    how: str = ""
+
+    @property
+    def all_runs(self) -> list[Run]:
+        return [*self.evals, *self.trains.values(), *self.tunes.values()]
+
+
+def select(
+    client: MlflowClient,
+    experiment: str,
+    pipeline_run: str | None = None,
+    eval_runs: list[str] | None = None,
+    filter_string: str | None = None,
+) -> Selection:
+    """Eval runs by explicit ids, by pipeline parent run, by an MLflow filter, or (default) those
+    of the latest pipeline run, else the latest eval run; then their lineage."""
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        raise ConfigError(
+            f"the report has nothing to show: experiment '{experiment}' does not exist in this "
+            "store; run `armexp eval` (after tune and train) first, or set tracking.runs_dir / "
+            "tracking.uri to the store that holds your runs."
+        )
+    eid = exp.experiment_id
+    finished_evals = f"tags.`{STAGE_TAG}` = 'eval' and attributes.status = 'FINISHED'"
+
+    def search(filter_: str, n: int = 1000) -> list[Run]:
+        return list(
+            client.search_runs(
+                [eid], filter_, order_by=["attributes.start_time DESC"], max_results=n
+            )
+        )
+
+    if eval_runs:
+        evals = []
+        for run_id in eval_runs:
+            try:
+                run = client.get_run(run_id)
+            except Exception:
+                raise ConfigError(
+                    f"report.eval_runs contains {run_id}, which is not allowed: no run with that "
+                    "id exists in this store."
+                ) from None
+            if run.data.tags.get(STAGE_TAG) != "eval":
+                raise ConfigError(
+                    f"report.eval_runs contains {run_id}, which is not allowed: it is a "
+                    f"{run.data.tags.get(STAGE_TAG) or 'non-armexp'} run, not an eval run."
+                )
+            evals.append(run)
+        how = f"eval runs {', '.join(eval_runs)}"
+    elif pipeline_run:
+        evals = search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{pipeline_run}'")
+        how = f"eval runs of pipeline run {pipeline_run}"
+    elif filter_string:
+        evals = search(f"{finished_evals} and {filter_string}")
+        how = f"eval runs matching {filter_string}"
+    else:
+        pipelines = search(f"tags.`{STAGE_TAG}` = 'pipeline'", 1)
+        evals = (
+            search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{pipelines[0].info.run_id}'")
+            if pipelines
+            else []
+        )
+        how = f"eval runs of the latest pipeline run {pipelines[0].info.run_id}" if evals else ""
+        if not evals:
+            evals = search(finished_evals, 1)
+            how = "the latest finished eval run"
+    if not evals:
+        raise ConfigError(
+            f"the report has nothing to show: {how or 'the selection'} found no FINISHED eval run "
+            f"in experiment '{experiment}'; run `armexp eval` (or `armexp pipeline`) first."
+        )
+    selection = Selection(evals=evals, how=how)
+    for ev in evals:
+        for tag in ("armexp.train_run", "armexp.tune_run", "armexp.pid_tune_run"):
+            upstream = ev.data.tags.get(tag)
+            if not upstream:
+                continue
+            try:
+                run = client.get_run(upstream)
+            except Exception:
+                continue  # deleted upstream: the tables that need it say so
+            (selection.trains if tag == "armexp.train_run" else selection.tunes)[upstream] = run
+    return selection
+
+
+class Reader:
+    """Artifacts of runs as pandas / dicts, downloaded once into a private folder."""
+
+    def __init__(self, tracking_uri: str) -> None:
+        self.uri = tracking_uri
+        self.client = MlflowClient(tracking_uri)
+        self._dir = Path(tempfile.mkdtemp(prefix="armexp-report-"))
+
+    def path(self, run_id: str, artifact: str) -> Path | None:
+        mlflow.set_tracking_uri(self.uri)
+        try:
+            return Path(
+                mlflow.artifacts.download_artifacts(
+                    run_id=run_id, artifact_path=artifact, dst_path=str(self._dir / run_id)
+                )
+            )
+        except Exception:
+            return None
+
+    def frame(self, run_id: str, artifact: str) -> pd.DataFrame | None:
+        path = self.path(run_id, artifact)
+        if path is None:
+            return None
+        return pd.read_parquet(path) if artifact.endswith(".parquet") else pd.read_csv(path)
+
+    def yaml(self, run_id: str, artifact: str) -> Any:
+        path = self.path(run_id, artifact)
+        return None if path is None else yaml.safe_load(path.read_text())
+
+    def history(self, run_id: str, key: str) -> pd.DataFrame:
+        points = self.client.get_metric_history(run_id, key)
+        frame = pd.DataFrame([(m.step, m.value) for m in points], columns=["step", "value"])
+        return frame.sort_values("step", kind="stable").reset_index(drop=True)
