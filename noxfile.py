@@ -35,6 +35,7 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/sim_speed.py")
     session.run("python", "benchmarks/tune_speed.py")
     session.run("python", "benchmarks/env_speed.py")
+    session.run("python", "benchmarks/report_speed.py")
 
 
 @nox.session

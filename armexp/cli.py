@@ -31,7 +31,7 @@ STAGES: dict[str, tuple[str | None, str]] = {
         "tasks (a)-(d) and held-out targets, proposed controller and PID",
     ),
     "report": ("armexp.stages.report", "Tables I-III and Figures 3-6 from stored runs"),
-    "pipeline": (None, "tune -> train -> eval -> report under one parent run"),
+    "pipeline": ("armexp.stages.pipeline", "tune -> train -> eval -> report under one parent run"),
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
 }
 
@@ -111,7 +111,7 @@ def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     """``controller.gains=<preset>`` (or ``controller.gains.a0=…``) on a train command means
     "train with these gains", not "with a tune run's": add ``train.gains=config`` unless the
     user chose ``train.gains`` themselves."""
-    if stage != "train" or any(o.startswith("train.gains=") for o in overrides):
+    if stage not in ("train", "pipeline") or any(o.startswith("train.gains=") for o in overrides):
         return overrides
     keys = [o.lstrip("+~").partition("=")[0] for o in overrides]
     if any(k in ("controller.gains", "controller/gains") or k.startswith("controller.gains.")
@@ -194,15 +194,58 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     _terminate_as_interrupt()
+    sweep = _open_sweep(stage, overrides) if multirun and validate else None
+    status = "FAILED"
     try:
         app()
+        status = "FINISHED"
     except SystemExit as exc:  # a user error found at run time (exit 2), or Hydra's own exit
         code = exc.code
-        return code if isinstance(code, int) else (0 if code is None else 1)
+        code = code if isinstance(code, int) else (0 if code is None else 1)
+        status = "FINISHED" if code == 0 else "FAILED"
+        return code
     except KeyboardInterrupt:
+        status = "KILLED"
         print(f"armexp {stage}: interrupted; the MLflow run is marked KILLED.", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        if sweep is not None:
+            _close_sweep(sweep, status)
     return 0
+
+
+def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str]:
+    """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
+    reaches every job (joblib's worker processes too) through the environment."""
+    from mlflow.tracking import MlflowClient
+
+    from armexp import tracking
+    from armexp.config import compose_config
+
+    fixed = [o for o in overrides if "," not in o and "(" not in o and not o.startswith("hydra")]
+    cfg = compose_config(fixed)
+    experiment_id = tracking.setup(cfg)
+    client = MlflowClient(tracking.store_uri(cfg))
+    run = tracking.retry(
+        lambda: client.create_run(
+            experiment_id,
+            run_name=f"sweep-{stage}",
+            tags={tracking.STAGE_TAG: "sweep", "armexp.sweep_stage": stage},
+        )
+    )
+    sweep_id = run.info.run_id
+    client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
+    os.environ[tracking.SWEEP_ENV] = sweep_id
+    print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
+    return client, sweep_id
+
+
+def _close_sweep(sweep: tuple[Any, str], status: str) -> None:
+    from armexp import tracking
+
+    client, sweep_id = sweep
+    os.environ.pop(tracking.SWEEP_ENV, None)
+    tracking.retry(lambda: client.set_terminated(sweep_id, status))
 
 
 def _terminate_as_interrupt() -> None:

@@ -13,8 +13,10 @@ The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import os
 import subprocess
 import tempfile
 import time
@@ -34,6 +36,25 @@ from armexp.config import ConfigError
 STAGE_TAG = "armexp.stage"
 COMMIT_TAG = "armexp.git_commit"
 ERROR_TAG = "armexp.error"
+SWEEP_TAG = "armexp.sweep"
+INPUTS_TAG = "armexp.inputs_hash"
+PARENT_TAG = "mlflow.parentRunId"
+#: Set by `armexp <stage> -m …` for its jobs (also in joblib's worker processes): the sweep's
+#: parent run, which every job's run names as its parent.
+SWEEP_ENV = "ARMEXP_SWEEP_RUN"
+#: The config a stage's result depends on; `inputs_hash` of these is tagged on every run, and
+#: ``pipeline.reuse`` reuses a FINISHED run with the same hash instead of running the stage again.
+STAGE_INPUTS: dict[str, tuple[str, ...]] = {
+    "simulate": ("seed", "robot", "controller", "scenario"),
+    "tune": ("seed", "robot", "controller", "tuner"),
+    "train": ("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
+              "train.tune_run"),
+    "eval": ("seed", "tasks", "eval.train_run", "eval.pid_gains", "eval.pid_tune_run",
+             "eval.controllers", "eval.paper_tasks", "eval.deterministic"),
+}  # fmt: skip
+_parents: list[str] = []
+#: The id of the stage run started last in this process (the pipeline reads its children's).
+last_run_id: str | None = None
 MAX_PARAM_LENGTH = 6000
 
 T = TypeVar("T")
@@ -125,6 +146,27 @@ def git_commit() -> str | None:
     return None
 
 
+def inputs_hash(cfg: DictConfig, stage: str) -> str | None:
+    """A short hash of the config sections the stage's result depends on (None: not tracked)."""
+    keys = STAGE_INPUTS.get(stage)
+    if keys is None:
+        return None
+    picked = {k: OmegaConf.to_container(OmegaConf.create({"v": OmegaConf.select(cfg, k)}),
+                                        resolve=True) for k in keys}  # fmt: skip
+    text = json.dumps(picked, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@contextmanager
+def parent(run_id: str) -> Iterator[None]:
+    """Stage runs started inside are children of ``run_id`` (a pipeline's nested runs)."""
+    _parents.append(run_id)
+    try:
+        yield
+    finally:
+        _parents.pop()
+
+
 @contextmanager
 def stage_run(
     cfg: DictConfig,
@@ -144,8 +186,15 @@ def stage_run(
     if commit:
         tags[COMMIT_TAG] = commit
         tags["mlflow.source.git.commit"] = commit
+    digest = inputs_hash(cfg, stage)
+    if digest:
+        tags[INPUTS_TAG] = digest
+    sweep = os.environ.get(SWEEP_ENV)
+    if sweep:
+        tags[SWEEP_TAG] = sweep
+    parent_run_id = parent_run_id or (_parents[-1] if _parents else None) or sweep
     if parent_run_id:
-        tags["mlflow.parentRunId"] = parent_run_id
+        tags[PARENT_TAG] = parent_run_id
     if resume_run_id:
         run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
         mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})
@@ -158,6 +207,8 @@ def stage_run(
                 nested=bool(parent_run_id),
             )
         )
+    global last_run_id
+    last_run_id = run.info.run_id
     try:
         if not resume_run_id:
             params = flatten(cfg)

@@ -8,7 +8,6 @@ from omegaconf import DictConfig
 
 from armexp.cli import main
 from armexp.config import compose_config
-
 from tests.helpers import SMALL_TRAIN, SMALL_TUNE
 
 

@@ -205,8 +205,9 @@ def test_sampled_targets_are_reachable_and_collision_free(paper_settings: ReachS
 def test_travel_time_is_the_velocity_bounded_time_without_obstacles() -> None:
     lengths, lower, upper = np.array([1.0, 0.8]), np.array([-1.0, -2.5]), np.array([2.0, 2.5])
     q0, bound = np.array([0.0, 1.5]), np.array([0.1, 0.4])
-    ws = build_workspace(lengths, lower, upper, q0, bound, np.zeros((0, 3)), max_time=40.0,
-                         min_distance=0.0)  # fmt: skip
+    ws = build_workspace(
+        lengths, lower, upper, q0, bound, np.zeros((0, 3)), max_time=40.0, min_distance=0.0
+    )
     # Each joint moves at most at its bound, all at once: the least time is the slowest joint's.
     exact = np.max(np.abs(ws.configs - q0) / bound, axis=1)
     assert np.all(np.abs(ws.times - exact) <= ws.cell_time + 1e-9)

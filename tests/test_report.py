@@ -13,10 +13,15 @@ from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
 
-FIGURES = ("fig3_tip_paths", "fig4_target_error", "fig5_torques", "fig6_tracking",
-           "learning_curves", "cso_convergence")  # fmt: skip
-TABLES = ("table1_environment", "table2_agent", "table3_performance", "comparison_pid",
-          "cso_gains")  # fmt: skip
+FIGURES = (
+    "fig3_tip_paths",
+    "fig4_target_error",
+    "fig5_torques",
+    "fig6_tracking",
+    "learning_curves",
+    "cso_convergence",
+)
+TABLES = ("table1_environment", "table2_agent", "table3_performance", "comparison_pid", "cso_gains")
 
 
 def _report(store: Path, out: Path) -> int:
@@ -75,8 +80,16 @@ def test_report_twice_gives_identical_tables(store: Path, tmp_path: Path) -> Non
 def test_report_runs_without_simulation_environment_or_agent_code(
     store: Path, tmp_path: Path
 ) -> None:
-    blocked = ["armexp.sim", "armexp.envs", "armexp.agents", "armexp.tune", "stable_baselines3",
-               "gymnasium", "torch", "numba"]  # fmt: skip
+    blocked = [
+        "armexp.sim",
+        "armexp.envs",
+        "armexp.agents",
+        "armexp.tune",
+        "stable_baselines3",
+        "gymnasium",
+        "torch",
+        "numba",
+    ]
     script = (
         "import sys\n"
         f"for name in {blocked!r}:\n"
@@ -84,8 +97,13 @@ def test_report_runs_without_simulation_environment_or_agent_code(
         "from armexp.cli import main\n"
         f"sys.exit(main(['report', 'tracking.runs_dir={store}', 'report.out_dir={tmp_path}/r']))\n"
     )
-    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         cwd=tmp_path, env={**os.environ})  # fmt: skip
+    res = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={**os.environ},
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     assert (tmp_path / "r" / "tables" / "table3_performance.md").exists()
 

@@ -111,9 +111,19 @@ def test_two_link_fast_path_matches_generic_path() -> None:
         state[4:6] = [0.3, -0.2]
         trace = np.empty((40 * HOLD, 2))
         done, diverged = run(
-            state, commands, HOLD, 0, ADAPTIVE, gains, model, plant.dt, key, make_work(2),
-            np.zeros((0, 14)), trace,
-        )  # fmt: skip
+            state,
+            commands,
+            HOLD,
+            0,
+            ADAPTIVE,
+            gains,
+            model,
+            plant.dt,
+            key,
+            make_work(2),
+            np.zeros((0, 14)),
+            trace,
+        )
         assert (done, diverged) == (40 * HOLD, False)
         traces.append(trace)
     assert np.abs(traces[0] - traces[1]).max() < 1e-12
@@ -128,8 +138,19 @@ def test_rows_beyond_the_cache_use_libm() -> None:
     for cap in (8, 1, 0):
         state = np.zeros(9)
         state[:2] = [0.05, 0.05]
-        advance(state, np.array([0.1, -0.3]), 0, 500, ADAPTIVE, gains, plant.packed(), plant.dt,
-                key, make_work(2, cap), np.zeros((0, 14)))  # fmt: skip
+        advance(
+            state,
+            np.array([0.1, -0.3]),
+            0,
+            500,
+            ADAPTIVE,
+            gains,
+            plant.packed(),
+            plant.dt,
+            key,
+            make_work(2, cap),
+            np.zeros((0, 14)),
+        )
         finals.append(state)
     assert np.abs(finals[0] - finals[1]).max() < 1e-12
     assert np.abs(finals[0] - finals[2]).max() < 1e-12
@@ -162,8 +183,14 @@ def test_uniform_exponential_convergence() -> None:
     with α* = that band and α ≈ 159 s⁻¹.
     """
     plant = Plant.build(TWO_LINK_PAPER, Uncertainty.paper())
-    sim = Simulator(plant, "subsystem_adaptive", controller_gains("subsystem_adaptive", 2),
-                    q0=[0.05, 0.05], qd0=[0.0, 0.0], seed=0)  # fmt: skip
+    sim = Simulator(
+        plant,
+        "subsystem_adaptive",
+        controller_gains("subsystem_adaptive", 2),
+        q0=[0.05, 0.05],
+        qd0=[0.0, 0.0],
+        seed=0,
+    )
     rows = sim.advance([0.0, 0.0], 2001, log=True)
     assert rows is not None and not sim.diverged
     t = rows[:, 0]
@@ -239,8 +266,14 @@ def test_simulate_batch_equals_sequential_runs() -> None:
     assert (done[:2] == total).all()
     for c in range(2):
         for s in range(n_scen):
-            sim = Simulator(plant, "subsystem_adaptive", gains[c], q0=q0[s] + offset[s],
-                            qd0=q0[s], seed=int(seeds[s]))  # fmt: skip
+            sim = Simulator(
+                plant,
+                "subsystem_adaptive",
+                gains[c],
+                q0=q0[s] + offset[s],
+                qd0=q0[s],
+                seed=int(seeds[s]),
+            )
             trace = []
             for cmd in commands[s]:
                 rows = sim.advance(cmd, HOLD, log=True)
@@ -257,8 +290,14 @@ def test_logged_rows_layout() -> None:
     for arm, unc in ((TWO_LINK_PAPER, Uncertainty.paper()), (THREE_LINK, small_uncertainty())):
         n = arm.n
         plant = Plant.build(arm, unc)
-        sim = Simulator(plant, "subsystem_adaptive", controller_gains("subsystem_adaptive", n),
-                        q0=np.full(n, 0.2), qd0=np.full(n, 0.1), seed=2)  # fmt: skip
+        sim = Simulator(
+            plant,
+            "subsystem_adaptive",
+            controller_gains("subsystem_adaptive", n),
+            q0=np.full(n, 0.2),
+            qd0=np.full(n, 0.1),
+            seed=2,
+        )
         cmd = np.linspace(0.1, -0.2, n)
         q_before, qd_before, dq_before = sim.q.copy(), sim.q_d.copy(), sim.dq.copy()
         rows = sim.advance(cmd, 1, log=True)

@@ -17,7 +17,6 @@ from armexp.agents.callbacks import EpisodeStats
 from armexp.agents.sac import ResumableSAC
 from armexp.cli import main
 from armexp.sim.core import trajectory_columns
-
 from tests.helpers import SMALL_TRAIN
 
 
@@ -38,8 +37,9 @@ def _runs(runs_dir: Path, stage: str) -> list[Any]:
 
 def _download(runs_dir: Path, run_id: str, path: str, dst: Path) -> Path:
     mlflow.set_tracking_uri(f"sqlite:///{runs_dir}/mlflow.db")
-    return Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path,
-                                                    dst_path=str(dst)))  # fmt: skip
+    return Path(
+        mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=str(dst))
+    )
 
 
 def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(
@@ -64,8 +64,9 @@ def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(
         _download(store, adaptive_tune.info.run_id, "gains.yaml", tmp_path / "t").read_text()
     )
     assert gains == tuned
-    model = ResumableSAC.load(str(_download(store, train.info.run_id, "model/model.zip",
-                                            tmp_path / "m")))  # fmt: skip
+    model = ResumableSAC.load(
+        str(_download(store, train.info.run_id, "model/model.zip", tmp_path / "m"))
+    )
     assert model.num_timesteps == 600
     action, _ = model.predict(np.zeros(13, dtype=np.float32), deterministic=True)
     assert action.shape == (2,) and np.all(np.abs(action) <= 1)
@@ -83,11 +84,20 @@ def test_eval_logs_per_task_metrics_and_trajectories_for_both_controllers(
     m = ev.data.metrics
     for label in ("adaptive", "pid"):
         for task in "abcd":
-            for key in ("success", "final_error_cm", "rms_e1", "tip_rms_cm", "max_abs_tau_1",
-                        "max_abs_tau_2", "collision", "steps"):  # fmt: skip
+            for key in (
+                "success",
+                "final_error_cm",
+                "rms_e1",
+                "tip_rms_cm",
+                "max_abs_tau_1",
+                "max_abs_tau_2",
+                "collision",
+                "steps",
+            ):
                 assert f"{label}.{task}.{key}" in m, (label, task, key)
-            path = _download(store, ev.info.run_id, f"trajectories/{label}/{task}.parquet",
-                             tmp_path / label)  # fmt: skip
+            path = _download(
+                store, ev.info.run_id, f"trajectories/{label}/{task}.parquet", tmp_path / label
+            )
             frame = pd.read_parquet(path)
             assert list(frame.columns) == [*trajectory_columns(2), "target_error"]
             assert len(frame) == 30 * m[f"{label}.{task}.steps"]
@@ -113,12 +123,25 @@ def test_eval_without_a_train_run_is_one_sentence(
 
 
 def test_train_with_paper_gains_needs_no_tune_run(runs_dir: Path) -> None:
-    rc = main(["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150",
-               f"tracking.runs_dir={runs_dir}"])  # fmt: skip
+    rc = main(
+        [
+            "train",
+            "controller.gains=paper",
+            *SMALL_TRAIN,
+            "agent.max_env_steps=150",
+            "train.eval_every=60",
+            "train.eval_targets=2",
+            f"tracking.runs_dir={runs_dir}",
+        ]
+    )
     assert rc == 0
     (run,) = _runs(runs_dir, "train")
     assert run.data.tags["armexp.gains_source"] == "config"
     assert "armexp.tune_run" not in run.data.tags
+    # Held-out checks while training: at steps 60 and 120 (2 environments: 2 steps per call).
+    held_out = _client(runs_dir).get_metric_history(run.info.run_id, "eval/success_rate")
+    assert sorted(m.step for m in held_out) == [60, 120]
+    assert all(0.0 <= m.value <= 1.0 for m in held_out)
 
 
 def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
@@ -133,8 +156,9 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
         return original(self)
 
     monkeypatch.setattr(EpisodeStats, "_on_step", interrupt_at_450)
-    rc = main(["train", "controller.gains=paper", *SMALL_TRAIN, "train.checkpoint_every=100000",
-               where])  # fmt: skip
+    rc = main(
+        ["train", "controller.gains=paper", *SMALL_TRAIN, "train.checkpoint_every=100000", where]
+    )
     assert rc == 130
     (run,) = _runs(runs_dir, "train")
     assert run.info.status == "KILLED"
@@ -152,8 +176,9 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
         _download(runs_dir, run.info.run_id, "model/state.json", tmp_path / "f").read_text()
     )
     assert final["num_timesteps"] == 600
-    steps = [m.step for m in _client(runs_dir).get_metric_history(run.info.run_id,
-                                                                  "episode/length")]  # fmt: skip
+    steps = [
+        m.step for m in _client(runs_dir).get_metric_history(run.info.run_id, "episode/length")
+    ]
     assert steps == sorted(steps)
 
 
@@ -161,8 +186,10 @@ def test_resume_of_a_finished_run_is_refused(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     where = f"tracking.runs_dir={runs_dir}"
-    assert main(["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=120",
-                 where]) == 0  # fmt: skip
+    assert (
+        main(["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=120", where])
+        == 0
+    )
     (run,) = _runs(runs_dir, "train")
     capsys.readouterr()
     assert main(["train", f"train.resume={run.info.run_id}", where]) == 2

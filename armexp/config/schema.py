@@ -308,6 +308,13 @@ class ReportStageConfig:
 
 
 @dataclass
+class PipelineStageConfig:
+    run_name: str | None = None
+    #: Reuse a FINISHED run whose stage inputs match instead of running the stage again.
+    reuse: bool = False
+
+
+@dataclass
 class ArmexpConfig:
     """The root config every stage composes (``conf/config.yaml``)."""
 
@@ -326,6 +333,7 @@ class ArmexpConfig:
     train: TrainStageConfig = field(default_factory=TrainStageConfig)
     eval: EvalStageConfig = field(default_factory=EvalStageConfig)
     report: ReportStageConfig = field(default_factory=ReportStageConfig)
+    pipeline: PipelineStageConfig = field(default_factory=PipelineStageConfig)
 
 
 SCHEMAS: dict[str, type] = {

@@ -1,0 +1,118 @@
+"""`armexp pipeline`: tune (adaptive and PID) → train → eval → report under one parent run.
+
+Each stage runs as a nested child run of the pipeline's run, wired to its upstream runs by id
+(``train.tune_run``, ``eval.train_run``, ``eval.pid_tune_run``, ``report.pipeline_run``), so the
+lineage tags point inside this pipeline. With ``pipeline.reuse=true`` a stage whose inputs (the
+config sections of `armexp.tracking.STAGE_INPUTS`, upstream run ids included) match a FINISHED
+run's is not run again: that run's id is used and tagged on the parent
+(``armexp.reused.<step>``). A failing stage marks the parent FAILED and names itself in
+``armexp.failed_stage``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import mlflow
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from armexp import tracking
+from armexp.config import ConfigError, validate
+
+log = logging.getLogger(__name__)
+
+FAILED_STAGE_TAG = "armexp.failed_stage"
+STEPS = ("tune", "tune_pid", "train", "eval", "report")
+
+
+def _pid_config(cfg: DictConfig) -> DictConfig:
+    """The same run with ``controller=pid``: composed by Hydra from this job's overrides."""
+    from hydra import compose
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
+
+    overrides: list[str] = []
+    if HydraConfig.initialized():
+        overrides = [o for o in HydraConfig.get().overrides.task if not o.startswith("controller")]
+    if not GlobalHydra.instance().is_initialized():
+        from armexp.config import compose_config
+
+        return compose_config([*overrides, "controller=pid"])
+    pid = compose(config_name="config", overrides=[*overrides, "controller=pid"])
+    validate(pid)
+    return pid
+
+
+def _reusable(cfg: DictConfig, stage: str) -> str | None:
+    digest = tracking.inputs_hash(cfg, stage)
+    if digest is None:
+        return None
+    client = MlflowClient(tracking.store_uri(cfg))
+    exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
+    if exp is None:
+        return None
+    runs = client.search_runs(
+        [exp.experiment_id],
+        f"tags.`{tracking.STAGE_TAG}` = '{stage}' and tags.`{tracking.INPUTS_TAG}` = '{digest}' "
+        "and attributes.status = 'FINISHED'",
+        order_by=["attributes.start_time DESC"],
+        max_results=1,
+    )
+    return runs[0].info.run_id if runs else None
+
+
+def run(cfg: DictConfig) -> dict[str, str]:
+    from armexp.stages import evaluate, report, train, tune
+
+    pid_cfg = _pid_config(cfg)
+    ids: dict[str, str] = {}
+    with tracking.stage_run(cfg, "pipeline", run_name=cfg.pipeline.run_name) as parent:
+        parent_id = parent.info.run_id
+
+        def step(name: str, stage: str, stage_cfg: DictConfig, fn: Callable[[Any], Any]) -> str:
+            if cfg.pipeline.reuse:
+                found = _reusable(stage_cfg, stage)
+                if found:
+                    print(f"pipeline: {name} reuses run {found}")
+                    mlflow.set_tag(f"armexp.reused.{name}", found)
+                    ids[name] = found
+                    return found
+            print(f"pipeline: {name} ...")
+            try:
+                with tracking.parent(parent_id):
+                    fn(stage_cfg)
+            except BaseException as exc:
+                mlflow.set_tag(FAILED_STAGE_TAG, name)
+                if isinstance(exc, ConfigError):
+                    raise ConfigError(f"the pipeline stopped at {name}: {exc}") from None
+                if not isinstance(exc, KeyboardInterrupt | SystemExit):
+                    print(f"pipeline: {name} failed: {type(exc).__name__}: {exc}")
+                raise
+            assert tracking.last_run_id is not None
+            ids[name] = tracking.last_run_id
+            mlflow.set_tag(f"armexp.run.{name}", ids[name])
+            return ids[name]
+
+        step("tune", "tune", cfg, tune.run)
+        step("tune_pid", "tune", pid_cfg, tune.run)
+        with open_dict(cfg):
+            if cfg.train.gains == "tuned":
+                cfg.train.tune_run = ids["tune"]
+            step("train", "train", cfg, train.run)
+            cfg.eval.train_run = ids["train"]
+            if cfg.eval.pid_gains == "tuned":
+                cfg.eval.pid_tune_run = ids["tune_pid"]
+            step("eval", "eval", cfg, evaluate.run)
+            cfg.report.pipeline_run = parent_id
+            cfg.report.eval_runs = [ids["eval"]]
+            step("report", "report", cfg, report.run)
+        mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(ids)), "runs.yaml")
+        print(
+            f"pipeline: run {parent_id} | "
+            + " | ".join(f"{k} {v[:8]}" for k, v in ids.items())
+            + f" | report: {report.out_dir(cfg) / 'index.html'}"
+        )
+    return ids

@@ -1,0 +1,111 @@
+"""armexp pipeline: one parent run, a FINISHED child per stage with lineage, reuse, failure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mlflow.tracking import MlflowClient
+
+from armexp.cli import main
+from tests.helpers import SMALL_TRAIN
+
+SMALL = [
+    "experiment=smoke",
+    "tuner.n_iterations=2",
+    "tuner.objective.n_scenarios=2",
+    "tuner.objective.horizon=0.2",
+    *SMALL_TRAIN,
+    "tasks.n_random=1",
+]
+
+
+def _client(runs: Path) -> MlflowClient:
+    return MlflowClient(f"sqlite:///{runs}/mlflow.db")
+
+
+def _runs(runs: Path, stage: str) -> list[Any]:
+    client = _client(runs)
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    return client.search_runs(
+        [exp.experiment_id],
+        f"tags.`armexp.stage` = '{stage}'",
+        order_by=["attributes.start_time ASC"],
+    )
+
+
+@pytest.fixture(scope="module")
+def pipeline_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    runs = tmp_path_factory.mktemp("pipe") / "runs"
+    assert main(["pipeline", *SMALL, f"tracking.runs_dir={runs}"]) == 0
+    return runs
+
+
+def test_pipeline_makes_one_parent_and_a_finished_child_per_stage(pipeline_store: Path) -> None:
+    (parent,) = _runs(pipeline_store, "pipeline")
+    assert parent.info.status == "FINISHED"
+    pid = parent.info.run_id
+    children = {s: _runs(pipeline_store, s) for s in ("tune", "train", "eval", "report")}
+    assert [len(children[s]) for s in ("tune", "train", "eval", "report")] == [2, 1, 1, 1]
+    for stage_runs in children.values():
+        for run in stage_runs:
+            assert run.info.status == "FINISHED"
+            assert run.data.tags["mlflow.parentRunId"] == pid
+    tunes = {r.data.params["controller.name"]: r.info.run_id for r in children["tune"]}
+    (train,), (ev,), (report,) = children["train"], children["eval"], children["report"]
+    # Lineage: every child names its upstream runs, all inside this pipeline.
+    assert train.data.tags["armexp.tune_run"] == tunes["subsystem_adaptive"]
+    assert ev.data.tags["armexp.train_run"] == train.info.run_id
+    assert ev.data.tags["armexp.pid_tune_run"] == tunes["pid"]
+    assert report.data.tags["armexp.report_runs"] == ev.info.run_id
+    assert parent.data.tags["armexp.run.train"] == train.info.run_id
+    index = pipeline_store / "report" / "index.html"
+    assert index.exists() and ev.info.run_id in index.read_text()
+
+
+def test_pipeline_reuse_skips_stages_whose_inputs_match(pipeline_store: Path) -> None:
+    before = {s: len(_runs(pipeline_store, s)) for s in ("tune", "train", "eval")}
+    assert (
+        main(["pipeline", *SMALL, "pipeline.reuse=true", f"tracking.runs_dir={pipeline_store}"])
+        == 0
+    )
+    after = {s: len(_runs(pipeline_store, s)) for s in ("tune", "train", "eval")}
+    assert after == before
+    second = _runs(pipeline_store, "pipeline")[-1]
+    first_train = _runs(pipeline_store, "train")[0]
+    assert second.data.tags["armexp.reused.train"] == first_train.info.run_id
+    assert {"armexp.reused.tune", "armexp.reused.tune_pid", "armexp.reused.eval"} <= set(
+        second.data.tags
+    )
+    # A changed input runs that stage (and everything downstream of it) again.
+    assert (
+        main(
+            [
+                "pipeline",
+                *SMALL,
+                "pipeline.reuse=true",
+                "seed=5",
+                f"tracking.runs_dir={pipeline_store}",
+            ]
+        )
+        == 0
+    )
+    assert len(_runs(pipeline_store, "train")) == before["train"] + 1
+
+
+def test_failing_stage_fails_the_parent_and_names_itself(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs = tmp_path / "runs"
+    with pytest.raises(ValueError):
+        main(["pipeline", *SMALL, "agent.ent_coef=bogus", f"tracking.runs_dir={runs}"])
+    assert "pipeline: train failed" in capsys.readouterr().out
+    (parent,) = _runs(runs, "pipeline")
+    assert parent.info.status == "FAILED"
+    assert parent.data.tags["armexp.failed_stage"] == "train"
+    assert "bogus" in parent.data.tags["armexp.error"]
+    (train,) = _runs(runs, "train")
+    assert train.info.status == "FAILED"
+    assert all(r.info.status == "FINISHED" for r in _runs(runs, "tune"))

@@ -1,0 +1,215 @@
+"""Sweeps against one SQLite store, a real `mlflow server`, launcher configs, signals."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import mlflow
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from mlflow.tracking import MlflowClient
+
+from armexp.cli import main
+from armexp.config import config_dir, register_schemas
+from tests.helpers import SMALL_TRAIN
+
+
+def _search(uri: str, stage: str) -> list[Any]:
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    return client.search_runs([exp.experiment_id], f"tags.`armexp.stage` = '{stage}'")
+
+
+def test_joblib_sweep_of_4_jobs_on_2_workers_loses_nothing(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    rc = main(
+        [
+            "simulate",
+            "-m",
+            "seed=0,1,2,3",
+            "scenario.duration=0.5",
+            "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2",
+            f"tracking.runs_dir={runs}",
+        ]
+    )
+    assert rc == 0
+    uri = f"sqlite:///{runs}/mlflow.db"
+    jobs = _search(uri, "simulate")
+    (sweep,) = _search(uri, "sweep")
+    assert len(jobs) == 4 and sweep.info.status == "FINISHED"
+    assert sorted(r.data.params["seed"] for r in jobs) == ["0", "1", "2", "3"]
+    keys = {frozenset(r.data.metrics) for r in jobs}
+    assert len(keys) == 1 and {"rms_e1", "convergence_time"} <= next(iter(keys))
+    for r in jobs:
+        assert r.info.status == "FINISHED"
+        assert r.data.tags["armexp.sweep"] == sweep.info.run_id
+        assert r.data.tags["mlflow.parentRunId"] == sweep.info.run_id
+        assert "database is locked" not in r.data.tags.get("armexp.error", "")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def mlflow_server(tmp_path: Path) -> Iterator[str]:
+    port = _free_port()
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mlflow",
+            "server",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--backend-store-uri",
+            f"sqlite:///{tmp_path}/server.db",
+            "--artifacts-destination",
+            str(tmp_path / "server-artifacts"),
+            "--workers",
+            "1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(120):
+            try:
+                with urllib.request.urlopen(f"{url}/health", timeout=1) as res:
+                    if res.status == 200:
+                        break
+            except OSError:
+                time.sleep(0.5)
+        else:
+            pytest.fail("mlflow server did not start within 60 s")
+        yield url
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def test_stages_log_through_a_real_mlflow_server(mlflow_server: str, tmp_path: Path) -> None:
+    where = ["tracking=server", f"tracking.uri={mlflow_server}", f"tracking.runs_dir={tmp_path}"]
+    assert main(["simulate", "scenario.duration=0.3", *where]) == 0
+    assert (
+        main(
+            [
+                "tune",
+                "tuner=cso_fast",
+                "tuner.n_iterations=2",
+                "tuner.objective.n_scenarios=2",
+                "tuner.objective.horizon=0.2",
+                *where,
+            ]
+        )
+        == 0
+    )
+    (sim,) = _search(mlflow_server, "simulate")
+    (tune,) = _search(mlflow_server, "tune")
+    assert sim.info.status == tune.info.status == "FINISHED"
+    client = MlflowClient(mlflow_server)
+    assert {f.path for f in client.list_artifacts(sim.info.run_id)} >= {
+        "config.yaml",
+        "trajectory.parquet",
+    }
+    assert client.get_metric_history(tune.info.run_id, "best_objective")
+    assert not (tmp_path / "mlflow.db").exists()  # nothing went to the local store
+
+
+def test_cluster_launcher_configs_compose() -> None:
+    register_schemas()
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+            slurm = compose(
+                "config",
+                ["hydra/launcher=slurm", "hydra.launcher.partition=gpu"],
+                return_hydra_config=True,
+            ).hydra.launcher
+            ray = compose("config", ["hydra/launcher=ray"], return_hydra_config=True).hydra.launcher
+            par = compose("config", ["hydra/launcher=parallel"], return_hydra_config=True)
+    finally:
+        GlobalHydra.instance().clear()
+    assert slurm._target_.endswith("submitit_launcher.SlurmLauncher")
+    assert (slurm.partition, slurm.cpus_per_task, slurm.timeout_min) == ("gpu", 4, 240)
+    assert ray._target_ == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
+    assert ray.ray.init.address == "auto" and ray.ray.remote.num_cpus == 2
+    assert par.hydra.launcher._target_.endswith("JoblibLauncher")
+
+
+@pytest.mark.parametrize(
+    "sig", [signal.SIGINT, pytest.param(signal.SIGTERM, marks=pytest.mark.slow)]
+)
+def test_signal_during_train_leaves_killed_run_with_checkpoint_and_resume_finishes(
+    tmp_path: Path, sig: signal.Signals
+) -> None:
+    runs = tmp_path / "runs"
+    uri = f"sqlite:///{runs}/mlflow.db"
+    args = [
+        "train",
+        "controller.gains=paper",
+        *SMALL_TRAIN,
+        "agent.max_env_steps=3000",
+        "env.max_steps=50",
+        "train.log_every=100",
+        f"tracking.runs_dir={runs}",
+    ]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armexp", *args],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ},
+    )
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline:  # wait until training has logged some episodes
+            time.sleep(0.5)
+            try:
+                (run,) = _search(uri, "train")
+                if MlflowClient(uri).get_metric_history(run.info.run_id, "episode/reward"):
+                    break
+            except Exception:
+                continue
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-2000:]
+    (run,) = _search(uri, "train")
+    assert run.info.status == "KILLED"
+    client = MlflowClient(uri)
+    names = {f.path for f in client.list_artifacts(run.info.run_id, "checkpoint")}
+    assert names == {"checkpoint/model.zip", "checkpoint/state.json"}
+    mlflow.set_tracking_uri(uri)
+    state = mlflow.artifacts.download_artifacts(
+        run_id=run.info.run_id, artifact_path="checkpoint/state.json", dst_path=str(tmp_path)
+    )
+    saved = json.loads(Path(state).read_text())["num_timesteps"]
+    assert 0 < saved < 3000
+
+    assert main(["train", f"train.resume={run.info.run_id}", f"tracking.runs_dir={runs}"]) == 0
+    (done,) = _search(uri, "train")
+    assert done.info.run_id == run.info.run_id and done.info.status == "FINISHED"
+    assert done.data.tags["armexp.resumed_from_step"] == str(saved)
+    assert done.data.metrics["final/env_steps"] == 3000
