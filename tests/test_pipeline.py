@@ -99,8 +99,7 @@ def test_failing_stage_fails_the_parent_and_names_itself(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     runs = tmp_path / "runs"
-    with pytest.raises(ValueError):
-        main(["pipeline", *SMALL, "agent.ent_coef=bogus", f"tracking.runs_dir={runs}"])
+    assert main(["pipeline", *SMALL, "agent.ent_coef=bogus", f"tracking.runs_dir={runs}"]) == 1
     assert "pipeline: train failed" in capsys.readouterr().out
     (parent,) = _runs(runs, "pipeline")
     assert parent.info.status == "FAILED"

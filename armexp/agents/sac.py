@@ -36,6 +36,7 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "train_freq": int(agent.train_freq),
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
+        "n_steps": int(agent.n_steps),
         "policy_kwargs": {"net_arch": list(agent.net_arch)},
         "device": str(agent.device),
     }

@@ -169,6 +169,8 @@ class AgentConfig:
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))
     ent_coef: str = "auto"
+    #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
+    n_steps: int = checked(1, at_least(1))
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
     #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
     n_envs: int = checked(1, at_least(1))
