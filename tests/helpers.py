@@ -1,4 +1,8 @@
-"""Shared budgets for tests that run real stages (seconds, not minutes)."""
+"""Shared budgets and look-ups for tests that run real stages (seconds, not minutes)."""
+
+from __future__ import annotations
+
+from typing import Any
 
 SMALL_TUNE = [
     "tuner=cso_fast",
@@ -16,3 +20,19 @@ SMALL_TRAIN = [
     "train.progress=false",
     "env.max_steps=100",
 ]
+
+
+def stage_runs(store: Any, stage: str, newest_first: bool = True) -> list[Any]:
+    """The runs of one stage in experiment 'armexp' of a store: a runs folder (SQLite) or a URI."""
+    from mlflow.tracking import MlflowClient
+
+    uri = store if isinstance(store, str) else f"sqlite:///{store}/mlflow.db"
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None, f"no experiment 'armexp' in {uri}"
+    order = "DESC" if newest_first else "ASC"
+    return client.search_runs(
+        [exp.experiment_id],
+        f"tags.`armexp.stage` = '{stage}'",
+        order_by=[f"attributes.start_time {order}"],
+    )

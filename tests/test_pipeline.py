@@ -6,10 +6,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
-from tests.helpers import SMALL_TRAIN
+from tests.helpers import SMALL_TRAIN, stage_runs
 
 SMALL = [
     "experiment=smoke",
@@ -21,19 +20,8 @@ SMALL = [
 ]
 
 
-def _client(runs: Path) -> MlflowClient:
-    return MlflowClient(f"sqlite:///{runs}/mlflow.db")
-
-
 def _runs(runs: Path, stage: str) -> list[Any]:
-    client = _client(runs)
-    exp = client.get_experiment_by_name("armexp")
-    assert exp is not None
-    return client.search_runs(
-        [exp.experiment_id],
-        f"tags.`armexp.stage` = '{stage}'",
-        order_by=["attributes.start_time ASC"],
-    )
+    return stage_runs(runs, stage, newest_first=False)
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +37,8 @@ def test_pipeline_makes_one_parent_and_a_finished_child_per_stage(pipeline_store
     pid = parent.info.run_id
     children = {s: _runs(pipeline_store, s) for s in ("tune", "train", "eval", "report")}
     assert [len(children[s]) for s in ("tune", "train", "eval", "report")] == [2, 1, 1, 1]
-    for stage_runs in children.values():
-        for run in stage_runs:
+    for group in children.values():
+        for run in group:
             assert run.info.status == "FINISHED"
             assert run.data.tags["mlflow.parentRunId"] == pid
     tunes = {r.data.params["controller.name"]: r.info.run_id for r in children["tune"]}

@@ -22,14 +22,11 @@ from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
 from armexp.config import config_dir, register_schemas
-from tests.helpers import SMALL_TRAIN
+from tests.helpers import SMALL_TRAIN, stage_runs
 
 
 def _search(uri: str, stage: str) -> list[Any]:
-    client = MlflowClient(uri)
-    exp = client.get_experiment_by_name("armexp")
-    assert exp is not None
-    return client.search_runs([exp.experiment_id], f"tags.`armexp.stage` = '{stage}'")
+    return stage_runs(uri, stage)
 
 
 def test_joblib_sweep_of_4_jobs_on_2_workers_loses_nothing(tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ from armexp.agents.callbacks import EpisodeStats
 from armexp.agents.sac import ResumableSAC
 from armexp.cli import main
 from armexp.sim.core import trajectory_columns
-from tests.helpers import SMALL_TRAIN
+from tests.helpers import SMALL_TRAIN, stage_runs
 
 
 def _client(runs_dir: Path) -> MlflowClient:
@@ -25,14 +25,7 @@ def _client(runs_dir: Path) -> MlflowClient:
 
 
 def _runs(runs_dir: Path, stage: str) -> list[Any]:
-    client = _client(runs_dir)
-    exp = client.get_experiment_by_name("armexp")
-    assert exp is not None
-    return client.search_runs(
-        [exp.experiment_id],
-        filter_string=f"tags.`armexp.stage` = '{stage}'",
-        order_by=["attributes.start_time DESC"],
-    )
+    return stage_runs(runs_dir, stage)
 
 
 def _download(runs_dir: Path, run_id: str, path: str, dst: Path) -> Path:
