@@ -195,6 +195,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     _terminate_as_interrupt()
     sweep = _open_sweep(stage, overrides) if multirun and validate else None
+    if sweep is not None:
+        # Through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
+        sys.argv.insert(-1, f"tracking.sweep_run={sweep[1]}")
     status = "FAILED"
     try:
         app()
@@ -216,7 +219,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
 def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str]:
     """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
-    reaches every job (joblib's worker processes too) through the environment."""
+    reaches every job as ``tracking.sweep_run``."""
     from mlflow.tracking import MlflowClient
 
     from armexp import tracking
@@ -235,7 +238,6 @@ def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str]:
     )
     sweep_id = run.info.run_id
     client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
-    os.environ[tracking.SWEEP_ENV] = sweep_id
     print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
     return client, sweep_id
 
@@ -244,7 +246,6 @@ def _close_sweep(sweep: tuple[Any, str], status: str) -> None:
     from armexp import tracking
 
     client, sweep_id = sweep
-    os.environ.pop(tracking.SWEEP_ENV, None)
     tracking.retry(lambda: client.set_terminated(sweep_id, status))
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import subprocess
 import tempfile
 import time
@@ -39,9 +38,6 @@ ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
 INPUTS_TAG = "armexp.inputs_hash"
 PARENT_TAG = "mlflow.parentRunId"
-#: Set by `armexp <stage> -m …` for its jobs (also in joblib's worker processes): the sweep's
-#: parent run, which every job's run names as its parent.
-SWEEP_ENV = "ARMEXP_SWEEP_RUN"
 #: The config a stage's result depends on; `inputs_hash` of these is tagged on every run, and
 #: ``pipeline.reuse`` reuses a FINISHED run with the same hash instead of running the stage again.
 STAGE_INPUTS: dict[str, tuple[str, ...]] = {
@@ -189,7 +185,7 @@ def stage_run(
     digest = inputs_hash(cfg, stage)
     if digest:
         tags[INPUTS_TAG] = digest
-    sweep = os.environ.get(SWEEP_ENV)
+    sweep = OmegaConf.select(cfg, "tracking.sweep_run")
     if sweep:
         tags[SWEEP_TAG] = sweep
     parent_run_id = parent_run_id or (_parents[-1] if _parents else None) or sweep

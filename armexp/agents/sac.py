@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -48,4 +49,8 @@ def build_sac(agent: DictConfig, env: VecEnv, seed: int) -> ResumableSAC:
 
 def load_sac(path: str, env: VecEnv | None, agent: DictConfig) -> ResumableSAC:
     """A saved model (checkpoint or final); ``env`` None for inference only."""
-    return ResumableSAC.load(path, env=env, device=str(agent.device))
+    with warnings.catch_warnings():
+        # A model saved with n-step returns carries its NStepReplayBuffer class and kwargs; SB3
+        # warns on load that it will not set them up again, which is what we want.
+        warnings.filterwarnings("ignore", message=".*n_steps=.* is ignored because a custom")
+        return ResumableSAC.load(path, env=env, device=str(agent.device))

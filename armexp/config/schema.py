@@ -241,6 +241,8 @@ class TrackingConfig:
     experiment: str = "armexp"
     runs_dir: str = "runs"
     artifact_root: str | None = None
+    #: Set by `armexp <stage> -m`: the sweep's parent run, which every job's run hangs under.
+    sweep_run: str | None = None
 
 
 # ---------------------------------------------------------------------------------- stages
