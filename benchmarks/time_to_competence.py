@@ -88,7 +88,7 @@ def main() -> int:
     for label in ("adaptive", "pid"):
         rate = m[f"{label}.random.success_rate"]
         tasks = {t: m.get(f"{label}.{t}.success", 0.0) for t in "abcd"}
-        times = {t: m.get(f"{label}.{t}.target_time") for t in "abcd"}
+        times = {t: m.get(f"{label}.{t}.target_time", float("nan")) for t in "abcd"}
         shown = ", ".join(
             f"({t}) {times[t]:.1f} s" if tasks[t] else f"({t}) missed" for t in "abcd"
         )

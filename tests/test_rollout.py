@@ -66,3 +66,17 @@ def test_metrics_of_a_miss(env: ReachEnv) -> None:
     start_error = np.hypot(1.0 - 0.5, 0.8 + 0.5) * 100
     assert m["final_error_cm"] == pytest.approx(start_error, abs=0.5)
     assert m["steps"] == 20 and len(episode.rows) == 600
+
+
+def test_reach_in_the_last_controller_step_still_has_a_target_time() -> None:
+    from armexp.agents.rollout import Episode
+
+    t = np.arange(60) * 1e-3
+    rows = np.zeros((60, 15))
+    rows[:, 0] = t
+    rows[:, -1] = 0.05  # logged at each step's start: never inside the 4 cm threshold
+    episode = Episode("reached", 2, 200.0, 0.039, np.zeros(2), rows)
+    m = episode_metrics(episode, 2, np.array([1.0, 0.8]), 0.04)
+    assert m["target_time"] == pytest.approx(0.060)
+    missed = Episode("time_limit", 2, -1.0, 0.05, np.zeros(2), rows)
+    assert np.isnan(episode_metrics(missed, 2, np.array([1.0, 0.8]), 0.04)["target_time"])

@@ -67,7 +67,7 @@ def episode_metrics(episode: Episode, n: int, lengths: Array, threshold: float) 
     out = {
         "success": float(episode.reason == "reached"),
         "collision": float(episode.reason == "collision"),
-        "target_time": float(t[inside[0]]) if inside.size else float("nan"),
+        "target_time": _target_time(t, inside, episode.reason == "reached"),
         "final_error_cm": episode.final_error * 100.0,
         "rms_e1": tracking["rms_e1"],
         "tip_rms_cm": tracking["tip_rms_cm"],
@@ -88,3 +88,13 @@ def _ball_convergence(rows: Array, n: int) -> float:
         return float("nan")
     ball = float(norm[t.size // 2 :].max())
     return convergence_time(t, norm, ball)
+
+
+def _target_time(t: Array, inside: np.ndarray, reached: bool) -> float:
+    """First logged time inside the threshold; a reach that happens during the very last
+    controller step is only seen at the end of it (rows hold each step's start)."""
+    if inside.size:
+        return float(t[inside[0]])
+    if reached and t.size >= 2:
+        return float(t[-1] + (t[1] - t[0]))
+    return float("nan")
