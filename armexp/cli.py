@@ -194,7 +194,8 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     _terminate_as_interrupt()
-    sweep = _open_sweep(stage, overrides) if multirun and validate else None
+    runs_jobs = multirun and validate and not {"--cfg", "-c"} & set(flags)
+    sweep = _open_sweep(stage, overrides) if runs_jobs else None
     if sweep is not None:
         # Through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
         sys.argv.insert(-1, f"tracking.sweep_run={sweep[1]}")
