@@ -258,12 +258,14 @@ def find_stage_run(
     run_id: str | None = None,
     match: Mapping[str, str] | None = None,
     key: str = "run",
+    statuses: tuple[str, ...] = ("FINISHED",),
 ) -> Run:
     """The upstream run a stage consumes: ``run_id`` if given, else the latest FINISHED run of
     ``stage`` in the configured experiment whose params equal ``match``.
 
     Raises `ConfigError` with one sentence when the id does not exist, belongs to another stage,
-    did not finish, or when no run matches. ``key`` names the config key that carries the id.
+    is not in one of ``statuses``, or when no run matches. ``key`` names the config key that
+    carries the id.
     """
     experiment_id = setup(cfg)
     client = MlflowClient(store_uri(cfg))
@@ -282,10 +284,10 @@ def find_stage_run(
                 f"{key}={run_id} is not allowed: it is a {got or 'non-armexp'} run, and a "
                 f"{stage} run is needed here."
             )
-        if run.info.status != "FINISHED":
+        if run.info.status not in statuses:
             raise ConfigError(
                 f"{key}={run_id} is not allowed: that {stage} run is {run.info.status}, and only "
-                "FINISHED runs can be used."
+                f"{' or '.join(statuses)} runs can be used here."
             )
         return run
     clauses = [f"tags.`{STAGE_TAG}` = '{stage}'", "attributes.status = 'FINISHED'"]

@@ -16,6 +16,7 @@ import yaml
 from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
+from tests.helpers import stage_runs
 
 
 def sqlite_uri(runs_dir: Path) -> str:
@@ -23,10 +24,7 @@ def sqlite_uri(runs_dir: Path) -> str:
 
 
 def _runs(runs_dir: Path, stage: str) -> list[mlflow.entities.Run]:
-    client = MlflowClient(sqlite_uri(runs_dir))
-    exp = client.get_experiment_by_name("armexp")
-    assert exp is not None
-    return client.search_runs([exp.experiment_id], filter_string=f"tags.`armexp.stage` = '{stage}'")
+    return stage_runs(runs_dir, stage)
 
 
 def _artifact(run: mlflow.entities.Run, path: str, runs_dir: Path, tmp: Path) -> Path:

@@ -34,17 +34,9 @@ def clearance(points: Array, obstacles: Array) -> Array:
 
 
 def segment_hits(p0: Array, p1: Array, obstacles: Array) -> bool:
-    """Whether the straight segment p0→p1 enters any obstacle.
+    """Whether the straight segment p0→p1 enters any obstacle (the environment's collision test,
+    `armexp.envs.kernel.segment_enters`, which checks the tip's path over each 30 ms action)."""
+    from armexp.envs.kernel import segment_enters
 
-    The tip moves ≤ ~2 cm in one 30 ms action, so its 1 kHz path is a segment to within a
-    fraction of a millimetre; checking the segment rather than its end points means a tip that
-    clips an obstacle between two actions still counts as a collision.
-    """
-    if obstacles.shape[0] == 0:
-        return False
-    c = obstacles[:, :2]
-    seg = p1 - p0
-    length2 = float(seg @ seg)
-    s = np.clip(((c - p0) @ seg) / length2, 0.0, 1.0) if length2 > 0 else np.zeros(c.shape[0])
-    nearest = p0 + s[:, None] * seg
-    return bool((((c - nearest) ** 2).sum(1) < obstacles[:, 2] ** 2).any())
+    obs = np.ascontiguousarray(obstacles, dtype=np.float64).reshape(-1, 3)
+    return bool(segment_enters(float(p0[0]), float(p0[1]), float(p1[0]), float(p1[1]), obs))

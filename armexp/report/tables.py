@@ -38,7 +38,6 @@ _T95 = {
     30: 2.042,
     60: 2.000,
 }
-PAPER_GAINS = {"a0": 668.0, "a1": 552.0, "b1": 1.8, "c1": 0.001, "r1": 0.69}
 #: Table III as printed in the paper (target time s, target error cm, tracking error cm, max
 #: torque N·m, convergence time s), shown beside ours.
 PAPER_TABLE_III = {
@@ -342,8 +341,20 @@ def comparison(episodes: pd.DataFrame) -> Table:
     )
 
 
+def paper_gains() -> dict[str, float]:
+    """The paper's adaptive gains, from the config tree (``controller.gains=paper``)."""
+    from omegaconf import OmegaConf
+
+    from armexp.config import config_dir
+
+    gains = OmegaConf.to_container(OmegaConf.load(config_dir() / "controller/gains/paper.yaml"))
+    assert isinstance(gains, dict)
+    return {str(k): float(v) for k, v in gains.items()}
+
+
 def cso_table(tunes: list[dict[str, Any]]) -> Table:
     """Each tune run's best gains beside the paper's (adaptive), and the objective values."""
+    published = paper_gains()
     shown_rows, numbers = [], []
     for tune in tunes:
         gains = tune["gains"] or {}
@@ -351,7 +362,7 @@ def cso_table(tunes: list[dict[str, Any]]) -> Table:
             values = value if isinstance(value, list) else [value]
             for j, v in enumerate(values):
                 gain = name if len(values) == 1 else f"{name}_{j + 1}"
-                paper = PAPER_GAINS.get(gain, math.nan) if tune["controller"] != "pid" else math.nan
+                paper = published.get(gain, math.nan) if tune["controller"] != "pid" else math.nan
                 shown_rows.append(
                     {
                         "Controller": tune["controller"],

@@ -23,7 +23,6 @@ import mlflow
 import numpy as np
 import torch
 import yaml
-from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
@@ -86,24 +85,9 @@ def run(cfg: DictConfig) -> dict[str, float]:
 def resume(cfg: DictConfig) -> dict[str, float]:
     """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run."""
     run_id = str(cfg.train.resume)
-    client = MlflowClient(tracking.store_uri(cfg))
-    try:
-        old = client.get_run(run_id)
-    except Exception:
-        raise ConfigError(
-            f"train.resume={run_id} is not allowed: no run with that id exists in the store "
-            f"{tracking.store_uri(cfg)}."
-        ) from None
-    if old.data.tags.get(tracking.STAGE_TAG) != "train":
-        raise ConfigError(
-            f"train.resume={run_id} is not allowed: it is a "
-            f"{old.data.tags.get(tracking.STAGE_TAG) or 'non-armexp'} run, not a train run."
-        )
-    if old.info.status == "FINISHED":
-        raise ConfigError(
-            f"train.resume={run_id} is not allowed: that run FINISHED; only KILLED or FAILED "
-            "runs can be resumed."
-        )
+    tracking.find_stage_run(
+        cfg, "train", run_id=run_id, key="train.resume", statuses=("KILLED", "FAILED", "RUNNING")
+    )
     try:
         state_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{STATE_FILE}", cfg)
     except Exception:
