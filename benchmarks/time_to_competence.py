@@ -4,6 +4,7 @@ Run from the repository root (about 25 minutes on a 2-core machine)::
 
     python benchmarks/time_to_competence.py                 # 20-minute training budget
     python benchmarks/time_to_competence.py --minutes 5     # a shorter look
+    python benchmarks/time_to_competence.py agent.gamma=0.995  # train overrides after the options
 
 It runs the real stages against their own MLflow store (``runs/bench``, browse it with
 ``armexp ui tracking.runs_dir=runs/bench``):
@@ -41,6 +42,11 @@ def main() -> int:
     parser.add_argument("--runs-dir", default="runs/bench", help="MLflow store folder")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-every", type=int, default=40_000, help="steps between checks")
+    parser.add_argument(
+        "overrides",
+        nargs="*",
+        help="extra Hydra overrides for the train stage, e.g. agent.gamma=0.995",
+    )
     args = parser.parse_args()
     where = f"tracking.runs_dir={args.runs_dir}"
     for controller in ("subsystem_adaptive", "pid"):
@@ -48,7 +54,7 @@ def main() -> int:
             return 1
     rc = armexp(["train", "experiment=quick", f"agent.max_minutes={args.minutes}",
                  f"train.eval_every={args.eval_every}", f"seed={args.seed}",
-                 "train.progress=false", where])  # fmt: skip
+                 "train.progress=false", where, *args.overrides])  # fmt: skip
     if rc != 0:
         return rc
     if armexp(["eval", "tasks.n_random=100", where]) != 0:

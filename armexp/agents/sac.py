@@ -10,6 +10,9 @@ from omegaconf import DictConfig
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
+from armexp.agents.relabel import GoalRelabelBuffer
+from armexp.envs.reach import ReachSettings
+
 
 class ResumableSAC(SAC):
     """SAC that, once resumed from a checkpoint, refills its (empty) replay buffer with its own
@@ -25,8 +28,25 @@ class ResumableSAC(SAC):
         return super()._sample_action(learning_starts, action_noise, n_envs)
 
 
-def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
-    """SB3 keyword arguments of an ``agent`` config (the keys are Table II's)."""
+def sac_kwargs(agent: DictConfig, settings: ReachSettings | None = None) -> dict[str, Any]:
+    """SB3 keyword arguments of an ``agent`` config (the keys are Table II's).
+
+    ``agent.relabel`` > 0 replays that share of each batch with hindsight targets
+    (`armexp.agents.relabel`), which needs the environment's reward ``settings``.
+    """
+    extra: dict[str, Any] = {}
+    if float(agent.relabel) > 0:
+        if settings is None:
+            raise ValueError("agent.relabel > 0 needs the environment's settings for its rewards.")
+        extra["replay_buffer_class"] = GoalRelabelBuffer
+        extra["replay_buffer_kwargs"] = {
+            "ratio": float(agent.relabel),
+            "n_steps": int(agent.n_steps),
+            "gamma": float(agent.gamma),
+            "threshold": settings.reach_threshold,
+            "reach_reward": settings.reach_reward,
+            "growth_penalty": settings.growth_penalty,
+        }
     return {
         "batch_size": int(agent.batch_size),
         "tau": float(agent.tau),
@@ -37,14 +57,19 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "train_freq": int(agent.train_freq),
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
-        "n_steps": int(agent.n_steps),
+        # With relabelling the buffer forms the n-step returns itself.
+        "n_steps": 1 if extra else int(agent.n_steps),
         "policy_kwargs": {"net_arch": list(agent.net_arch)},
         "device": str(agent.device),
+        **extra,
     }
 
 
-def build_sac(agent: DictConfig, env: VecEnv, seed: int) -> ResumableSAC:
-    return ResumableSAC("MlpPolicy", env, seed=seed, verbose=0, **sac_kwargs(agent))
+def build_sac(
+    agent: DictConfig, env: VecEnv, seed: int, settings: ReachSettings | None = None
+) -> ResumableSAC:
+    kwargs = sac_kwargs(agent, settings)
+    return ResumableSAC("MlpPolicy", env, seed=seed, verbose=0, **kwargs)
 
 
 def load_sac(path: str, env: VecEnv | None, agent: DictConfig) -> ResumableSAC:

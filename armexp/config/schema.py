@@ -171,6 +171,8 @@ class AgentConfig:
     ent_coef: str = "auto"
     #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
     n_steps: int = checked(1, at_least(1))
+    #: Share of each replayed batch given hindsight targets (`armexp.agents.relabel`; 0 = off).
+    relabel: float = checked(0.0, between(0.0, 1.0))
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
     #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
     n_envs: int = checked(1, at_least(1))

@@ -126,7 +126,7 @@ def _learn(
     venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
     model: ResumableSAC
     if model_path is None:
-        model = build_sac(agent, venv, int(cfg.seed))
+        model = build_sac(agent, venv, int(cfg.seed), settings)
     else:
         model = load_sac(model_path, venv, agent)
         model.resumed = True
