@@ -103,13 +103,21 @@ def travel_times(
 
 
 @lru_cache(maxsize=16)
+def _cached_times(key: tuple) -> tuple[list[Array], Array, float]:
+    lengths, lower, upper, q0, bound, obstacles, path_margin, max_time, cells = key
+    arr = [np.asarray(v, dtype=np.float64) for v in (lengths, lower, upper, q0, bound)]
+    obs = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
+    return travel_times(arr[0], arr[1], arr[2], arr[3], arr[4], obs, path_margin, max_time, cells)
+
+
+@lru_cache(maxsize=16)
 def _cached(key: tuple) -> Workspace:
     (lengths, lower, upper, q0, bound, obstacles, path_margin, target_margin, min_distance,
      max_time, cells, resolution) = key  # fmt: skip
     arr = [np.asarray(v, dtype=np.float64) for v in (lengths, lower, upper, q0, bound)]
     obs = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
-    axes, times, dt = travel_times(
-        arr[0], arr[1], arr[2], arr[3], arr[4], obs, path_margin, max_time, cells
+    axes, times, dt = _cached_times(
+        (lengths, lower, upper, q0, bound, obstacles, path_margin, max_time, cells)
     )
     reached = np.isfinite(times)
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)[reached]
@@ -158,3 +166,50 @@ def build_workspace(
          float(path_margin), float(target_margin), float(min_distance), float(max_time),
          int(cells), float(resolution))
     )  # fmt: skip
+
+
+def shortest_path(
+    lengths: Array,
+    lower: Array,
+    upper: Array,
+    q0: Array,
+    bound: Array,
+    obstacles: Array,
+    config: Array,
+    *,
+    path_margin: float = 0.02,
+    max_time: float = 15.0,
+    cells: int = 40_000,
+) -> tuple[Array, float]:
+    """A least-time grid path from ``q0`` to the grid cell ``config`` (a `Workspace.configs`
+    row): the cells (K, n), one time cell apart, the first at ``q0``'s cell; and that time cell
+    (s). Walks the breadth-first times of `travel_times` back down from ``config``."""
+
+    def key(a: Array) -> tuple[float, ...]:
+        return tuple(float(x) for x in np.asarray(a, dtype=np.float64).ravel())
+
+    axes, times, dt = _cached_times(
+        (key(lengths), key(lower), key(upper), key(q0), key(bound), key(obstacles),
+         float(path_margin), float(max_time), int(cells))
+    )  # fmt: skip
+    n = len(axes)
+    step = np.array([axes[j][1] - axes[j][0] for j in range(n)])
+    cell = tuple(int(np.rint((config[j] - axes[j][0]) / step[j])) for j in range(n))
+    if not np.isfinite(times[cell]):
+        raise ValueError(f"configuration {list(config)} is not reachable from q0 on the grid.")
+    moves = np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
+    shape = np.array(times.shape)
+    path = [cell]
+    while times[path[-1]] > 0:
+        here = np.array(path[-1])
+        best = None
+        for move in moves:
+            there = here + move
+            if np.all(there >= 0) and np.all(there < shape):
+                t = times[tuple(there)]
+                if best is None or t < best[0]:
+                    best = (t, tuple(int(v) for v in there))
+        assert best is not None and best[0] < times[path[-1]]
+        path.append(best[1])
+    grid = np.array([[axes[j][c[j]] for j in range(n)] for c in reversed(path)])
+    return grid, dt

@@ -41,6 +41,7 @@ from armexp.agents.callbacks import (
     Progress,
     log_model,
 )
+from armexp.agents.demonstrations import fill_replay
 from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
@@ -149,6 +150,14 @@ def _learn(
             "wall_s": stats.wall(),
         }
 
+    if model_path is None and int(agent.demonstrations):
+        # Inside the wall-time budget: `stats` started its clock above.
+        demos = fill_replay(model, ReachEnv(settings), int(agent.demonstrations), int(cfg.seed))
+        reached = sum(d.reason == "reached" for d in demos) / len(demos)
+        mlflow.log_metrics(
+            {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
+             "demonstrations/steps": sum(map(len, demos)), "demonstrations/wall_s": stats.wall()}
+        )  # fmt: skip
     checkpoint = Checkpoint(int(tr.checkpoint_every), snapshot)
     callbacks: list[Any] = [stats, budget, checkpoint]
     if tr.eval_every:
