@@ -188,3 +188,22 @@ def test_resume_of_a_finished_run_is_refused(
     assert main(["train", f"train.resume={run.info.run_id}", where]) == 2
     err = capsys.readouterr().err.strip()
     assert "FINISHED" in err and err.count("\n") == 0
+
+
+def test_train_with_demonstrations_and_relabelling_logs_the_demonstrations(
+    runs_dir: Path,
+) -> None:
+    rc = main(
+        ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150",
+         "agent.demonstrations=6", "agent.relabel=0.5", "env.max_steps=1000",
+         f"tracking.runs_dir={runs_dir}"]
+    )  # fmt: skip
+    assert rc == 0
+    (run,) = _runs(runs_dir, "train")
+    assert run.info.status == "FINISHED"
+    m = run.data.metrics
+    assert m["demonstrations/episodes"] == 6
+    assert m["demonstrations/success_rate"] >= 5 / 6  # the planner's paths reach (98 % of 200)
+    assert m["demonstrations/steps"] > 6 * 50  # whole episodes of seconds, not single steps
+    # The demonstrations do not count as the agent's own environment steps.
+    assert m["final/env_steps"] <= 152
