@@ -6,6 +6,8 @@ controller and robot; its id is tagged ``armexp.tune_run``) or, with ``train.gai
 
 Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
 per episode, reward, length, success and collision with their rates over the last 100 episodes.
+With ``agent.demonstrations`` the replay buffer starts with that many planner episodes
+(`armexp.agents.demonstrations`, ``demonstrations/*`` metrics; their time counts in the budget).
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
 buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
