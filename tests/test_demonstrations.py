@@ -13,7 +13,6 @@ from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import clearance, tips
 from armexp.envs.reach import ReachEnv, ReachSettings
-from armexp.envs.workspace import shortest_path
 
 
 @pytest.fixture(scope="module")
@@ -26,21 +25,13 @@ def env(settings: ReachSettings) -> ReachEnv:
     return ReachEnv(settings)
 
 
-def _path(s: ReachSettings, config: np.ndarray) -> tuple[np.ndarray, float]:
-    return shortest_path(
-        s.plant.arm.lengths_array, s.joint_lower, s.joint_upper, s.q0, s.velocity_bound,
-        s.obstacles, config, path_margin=s.path_margin, max_time=s.max_target_time,
-        cells=s.workspace_cells,
-    )  # fmt: skip
-
-
 def test_shortest_path_is_a_clear_velocity_bounded_least_time_path(
     settings: ReachSettings, env: ReachEnv
 ) -> None:
     ws = env.workspace
     rng = np.random.default_rng(0)
     for index in rng.integers(len(ws), size=25):
-        cells, cell_time = _path(settings, ws.configs[index])
+        cells, cell_time = settings.shortest_path(ws.configs[index])
         moves = np.abs(np.diff(cells, axis=0)) / (settings.velocity_bound * cell_time)
         assert np.all(moves <= 1 + 1e-9)  # one cell per joint per time cell at most
         assert np.allclose(cells[0], settings.q0, atol=settings.velocity_bound * cell_time)

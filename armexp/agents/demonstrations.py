@@ -18,7 +18,6 @@ import numpy as np
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from armexp.envs.reach import ReachEnv
-from armexp.envs.workspace import shortest_path
 from armexp.sim.model import Array
 
 #: Actions appended after the planned path, holding still while the tip settles.
@@ -44,11 +43,7 @@ def planned_actions(env: ReachEnv, config: Array) -> np.ndarray:
     """Normalised velocity references (K, n) that move q_d from ``q0`` along the least-time grid
     path to ``config`` and then hold, never beyond the velocity bounds."""
     s = env.settings
-    cells, cell_time = shortest_path(
-        s.plant.arm.lengths_array, s.joint_lower, s.joint_upper, s.q0, s.velocity_bound,
-        s.obstacles, config, path_margin=s.path_margin, max_time=s.max_target_time,
-        cells=s.workspace_cells,
-    )  # fmt: skip
+    cells, cell_time = s.shortest_path(config)
     cells[0] = s.q0  # the grid's start cell is q0 rounded to the grid
     period = s.action_period
     bound = np.asarray(s.velocity_bound, dtype=np.float64)

@@ -20,7 +20,7 @@ from gymnasium import spaces
 from armexp.envs.geometry import Array, joint_positions
 from armexp.envs.kernel import env_step, observe
 from armexp.envs.render import Canvas
-from armexp.envs.workspace import Workspace, build_workspace
+from armexp.envs.workspace import Workspace, build_workspace, shortest_path
 from armexp.sim.core import Simulator
 from armexp.sim.model import Plant
 
@@ -83,6 +83,15 @@ class ReachSettings:
             max_time=self.max_target_time if max_time is None else max_time,
             cells=self.workspace_cells,
         )
+
+    def shortest_path(self, config: Array) -> tuple[Array, float]:
+        """`armexp.envs.workspace.shortest_path` from ``q0`` to the grid cell ``config`` on the
+        grid of `workspace`."""
+        return shortest_path(
+            self.plant.arm.lengths_array, self.joint_lower, self.joint_upper, self.q0,
+            self.velocity_bound, self.obstacles, config, path_margin=self.path_margin,
+            max_time=self.max_target_time, cells=self.workspace_cells,
+        )  # fmt: skip
 
 
 class ReachEnv(gym.Env[np.ndarray, np.ndarray]):

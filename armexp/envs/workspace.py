@@ -102,6 +102,11 @@ def travel_times(
     return axes, times, dt
 
 
+def _key(a: Array) -> tuple[float, ...]:
+    """A hashable cache key for an array argument."""
+    return tuple(float(x) for x in np.asarray(a, dtype=np.float64).ravel())
+
+
 @lru_cache(maxsize=16)
 def _cached_times(key: tuple) -> tuple[list[Array], Array, float]:
     lengths, lower, upper, q0, bound, obstacles, path_margin, max_time, cells = key
@@ -158,11 +163,8 @@ def build_workspace(
 ) -> Workspace:
     """The workspace for one arm and obstacle set (cached: every env of a run shares it)."""
 
-    def key(a: Array) -> tuple[float, ...]:
-        return tuple(float(x) for x in np.asarray(a, dtype=np.float64).ravel())
-
     return _cached(
-        (key(lengths), key(lower), key(upper), key(q0), key(bound), key(obstacles),
+        (_key(lengths), _key(lower), _key(upper), _key(q0), _key(bound), _key(obstacles),
          float(path_margin), float(target_margin), float(min_distance), float(max_time),
          int(cells), float(resolution))
     )  # fmt: skip
@@ -185,11 +187,8 @@ def shortest_path(
     row): the cells (K, n), one time cell apart, the first at ``q0``'s cell; and that time cell
     (s). Walks the breadth-first times of `travel_times` back down from ``config``."""
 
-    def key(a: Array) -> tuple[float, ...]:
-        return tuple(float(x) for x in np.asarray(a, dtype=np.float64).ravel())
-
     axes, times, dt = _cached_times(
-        (key(lengths), key(lower), key(upper), key(q0), key(bound), key(obstacles),
+        (_key(lengths), _key(lower), _key(upper), _key(q0), _key(bound), _key(obstacles),
          float(path_margin), float(max_time), int(cells))
     )  # fmt: skip
     n = len(axes)
