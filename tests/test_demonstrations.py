@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from armexp.agents.demonstrations import demonstrate, fill_replay, planned_actions
+from armexp.agents.demonstrations import (
+    demonstrate,
+    demonstrations,
+    fill_replay,
+    planned_actions,
+)
 from armexp.agents.relabel import GoalRelabelBuffer
 from armexp.agents.sac import build_sac
 from armexp.agents.vec import make_vec_env
@@ -69,7 +74,8 @@ def test_fill_replay_stores_whole_episodes_column_by_column(
     ).agent
     venv = make_vec_env(settings, 3, "dummy", 0)
     model = build_sac(agent, venv, 0, settings)
-    demos = fill_replay(model, env, 9, seed=4)
+    demos = demonstrations(env, 9, seed=4)
+    fill_replay(model, demos)
     buffer = model.replay_buffer
     assert buffer is not None
     if relabel:

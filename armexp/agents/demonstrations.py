@@ -79,25 +79,27 @@ def demonstrate(env: ReachEnv, index: int, seed: int) -> Demonstration:
     )
 
 
-def fill_replay(
-    model: OffPolicyAlgorithm, env: ReachEnv, episodes: int, seed: int
-) -> list[Demonstration]:
-    """Put ``episodes`` planned episodes to random workspace targets into ``model``'s replay
-    buffer, one episode after another in each of its environment columns.
+def demonstrations(env: ReachEnv, episodes: int, seed: int) -> list[Demonstration]:
+    """``episodes`` planned episodes to random workspace targets (the same ones for a seed)."""
+    rng = np.random.default_rng(seed)
+    return [
+        demonstrate(env, int(rng.integers(len(env.workspace))), seed + i) for i in range(episodes)
+    ]
+
+
+def fill_replay(model: OffPolicyAlgorithm, demos: list[Demonstration]) -> None:
+    """Put ``demos`` into ``model``'s replay buffer, one episode after another in each of its
+    environment columns.
 
     The columns are filled to a common length; an episode cut there is stored as a time-limit
     end (SB3 bootstraps through it) and its remainder is dropped.
     """
-    rng = np.random.default_rng(seed)
-    demos = [
-        demonstrate(env, int(rng.integers(len(env.workspace))), seed + i) for i in range(episodes)
-    ]
     columns: list[list[Demonstration]] = [[] for _ in range(model.n_envs)]
     for demo in sorted(demos, key=len, reverse=True):
         min(columns, key=lambda c: sum(map(len, c))).append(demo)
     length = min(sum(map(len, c)) for c in columns)
     if length == 0:
-        return demos
+        return
 
     def stack(field: str) -> Array:
         return np.stack(
@@ -120,4 +122,3 @@ def fill_replay(
             for j in range(model.n_envs)
         ]
         buffer.add(obs[t], next_obs[t], actions[t], rewards[t], ends[t], infos)
-    return demos

@@ -7,7 +7,9 @@ controller and robot; its id is tagged ``armexp.tune_run``) or, with ``train.gai
 Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
 per episode, reward, length, success and collision with their rates over the last 100 episodes.
 With ``agent.demonstrations`` the replay buffer starts with that many planner episodes
-(`armexp.agents.demonstrations`, ``demonstrations/*`` metrics; their time counts in the budget).
+(`armexp.agents.demonstrations`, ``demonstrations/*`` metrics; their time counts in the budget),
+and ``agent.bc_weight`` > 0 adds a behaviour-cloning term on them to the actor loss
+(`armexp.agents.cloning`, ``train/bc_loss``).
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
 buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
@@ -43,7 +45,8 @@ from armexp.agents.callbacks import (
     Progress,
     log_model,
 )
-from armexp.agents.demonstrations import fill_replay
+from armexp.agents.cloning import DemonstrationCloning
+from armexp.agents.demonstrations import demonstrations, fill_replay
 from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
@@ -152,9 +155,14 @@ def _learn(
             "wall_s": stats.wall(),
         }
 
-    if model_path is None and int(agent.demonstrations):
-        # Inside the wall-time budget: `stats` started its clock above.
-        demos = fill_replay(model, ReachEnv(settings), int(agent.demonstrations), int(cfg.seed))
+    if int(agent.demonstrations):
+        # Inside the wall-time budget: `stats` started its clock above. A resumed run plans the
+        # same episodes again for the cloning term, but its replay buffer starts empty.
+        demos = demonstrations(ReachEnv(settings), int(agent.demonstrations), int(cfg.seed))
+        if model_path is None:
+            fill_replay(model, demos)
+        if float(agent.bc_weight) > 0:
+            DemonstrationCloning(model, demos, float(agent.bc_weight), int(cfg.seed))
         reached = sum(d.reason == "reached" for d in demos) / len(demos)
         mlflow.log_metrics(
             {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
