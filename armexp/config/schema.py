@@ -177,6 +177,8 @@ class AgentConfig:
     demonstrations: int = checked(0, at_least(0))
     #: Weight of the behaviour-cloning term on those demonstrations (`armexp.agents.cloning`).
     bc_weight: float = checked(0.0, nonnegative())
+    #: Reward per second of the planner's time to go in potential shaping (`armexp.agents.shaping`).
+    shaping: float = checked(0.0, nonnegative())
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
     #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
     n_envs: int = checked(1, at_least(1))

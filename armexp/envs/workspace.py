@@ -59,6 +59,59 @@ def _dilate(mask: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class JointGrid:
+    """Joint space inside the limits, one time cell ``dt`` per grid move of each joint; ``free``
+    marks the cells whose tip is clear of every obstacle by the path margin."""
+
+    axes: list[Array]
+    tip: Array
+    free: np.ndarray
+    dt: float
+
+    def cell(self, q: Array) -> tuple[int, ...]:
+        """The grid cell nearest ``q`` (clipped to the grid)."""
+        return tuple(
+            int(np.clip(np.rint((q[j] - a[0]) / (a[1] - a[0])), 0, len(a) - 1))
+            for j, a in enumerate(self.axes)
+        )
+
+
+def joint_grid(
+    lengths: Array,
+    lower: Array,
+    upper: Array,
+    bound: Array,
+    obstacles: Array,
+    path_margin: float,
+    cells: int,
+) -> JointGrid:
+    """About ``cells`` cells over the joint box, spaced h_j = q̇_j,max · Δt."""
+    n = lengths.shape[0]
+    spans = (upper - lower) / bound
+    dt = float((np.prod(spans) / cells) ** (1.0 / n))
+    axes = [np.arange(lower[j], upper[j] + 1e-12, bound[j] * dt) for j in range(n)]
+    tip = tips(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1), lengths)
+    free: np.ndarray = np.asarray((clearance(tip, obstacles) > path_margin).all(-1))
+    return JointGrid(axes, tip, free, dt)
+
+
+def breadth_first_times(free: np.ndarray, start: np.ndarray, dt: float, layers: int) -> Array:
+    """Least time (s) from the ``start`` cells to every ``free`` cell in at most ``layers`` moves
+    of one cell per joint (inf beyond)."""
+    times = np.full(free.shape, np.inf)
+    frontier = start.copy()
+    visited = frontier.copy()
+    times[frontier] = 0.0
+    for layer in range(1, layers + 1):
+        frontier = _dilate(frontier) & free & ~visited
+        if not frontier.any():
+            break
+        times[frontier] = layer * dt
+        visited |= frontier
+    return times
+
+
 def travel_times(
     lengths: Array,
     lower: Array,
@@ -71,35 +124,17 @@ def travel_times(
     cells: int,
 ) -> tuple[list[Array], Array, float]:
     """Grid axes, least travel time per cell (inf where unreachable) and the time cell Δt."""
-    n = lengths.shape[0]
-    spans = (upper - lower) / bound
-    dt = float((np.prod(spans) / cells) ** (1.0 / n))
-    axes = [np.arange(lower[j], upper[j] + 1e-12, bound[j] * dt) for j in range(n)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-    tip = tips(grid, lengths)
-    free: np.ndarray = np.asarray((clearance(tip, obstacles) > path_margin).all(-1))
-    start = tuple(
-        int(np.clip(np.rint((q0[j] - lower[j]) / (bound[j] * dt)), 0, len(axes[j]) - 1))
-        for j in range(n)
-    )
+    grid = joint_grid(lengths, lower, upper, bound, obstacles, path_margin, cells)
     if not (clearance(tips(q0, lengths), obstacles) > path_margin).all():
         raise ValueError(
             "the initial configuration puts the tip inside an obstacle (or within "
             f"{path_margin} m of one); move robot.q0 or the obstacles."
         )
-    free[start] = True  # the arm is there, whatever the grid node's rounding says
-    times = np.full(free.shape, np.inf)
-    frontier = np.zeros(free.shape, dtype=bool)
-    frontier[start] = True
-    visited = frontier.copy()
-    times[start] = 0.0
-    for layer in range(1, int(np.floor(max_time / dt + 1e-9)) + 1):
-        frontier = _dilate(frontier) & free & ~visited
-        if not frontier.any():
-            break
-        times[frontier] = layer * dt
-        visited |= frontier
-    return axes, times, dt
+    start = np.zeros(grid.free.shape, dtype=bool)
+    start[grid.cell(q0)] = True
+    free = grid.free | start  # the arm is there, whatever the grid node's rounding says
+    layers = int(np.floor(max_time / grid.dt + 1e-9))
+    return grid.axes, breadth_first_times(free, start, grid.dt, layers), grid.dt
 
 
 def _key(a: Array) -> tuple[float, ...]:
@@ -212,3 +247,14 @@ def shortest_path(
         path.append(best[1])
     grid = np.array([[axes[j][c[j]] for j in range(n)] for c in reversed(path)])
     return grid, dt
+
+
+def time_to_go(grid: JointGrid, target: Array, threshold: float) -> Array:
+    """Least time (s) from every grid cell to a cell whose tip is within ``threshold`` of
+    ``target`` over the free cells (inf where none is reachable); the nearest tip's cell stands
+    in when no cell is that close. Moves are symmetric, so this is a search from the goal."""
+    error = np.linalg.norm(grid.tip - np.asarray(target, dtype=np.float64), axis=-1)
+    goal = (error < threshold) & grid.free
+    if not goal.any():
+        goal = error == error[grid.free].min() if grid.free.any() else error == error.min()
+    return breadth_first_times(grid.free | goal, goal, grid.dt, goal.size)

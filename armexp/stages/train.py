@@ -9,7 +9,8 @@ per episode, reward, length, success and collision with their rates over the las
 With ``agent.demonstrations`` the replay buffer starts with that many planner episodes
 (`armexp.agents.demonstrations`, ``demonstrations/*`` metrics; their time counts in the budget),
 and ``agent.bc_weight`` > 0 adds a behaviour-cloning term on them to the actor loss
-(`armexp.agents.cloning`, ``train/bc_loss``).
+(`armexp.agents.cloning`, ``train/bc_loss``). ``agent.shaping`` > 0 trains on Table I's reward
+shaped by the planner's time to go (`armexp.agents.shaping`; logged episode rewards stay Table I's).
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
 buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
@@ -48,6 +49,7 @@ from armexp.agents.callbacks import (
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import demonstrations, fill_replay
 from armexp.agents.sac import ResumableSAC, build_sac, load_sac
+from armexp.agents.shaping import ShapedRewards, TimeToGoPotential
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
@@ -130,6 +132,10 @@ def _learn(
         torch.set_num_threads(int(tr.torch_threads))
     settings = settings_from_config(cfg, gains=gains)
     venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
+    potential = None
+    if float(agent.shaping) > 0:
+        potential = TimeToGoPotential(settings, float(agent.shaping))
+        venv = ShapedRewards(venv, potential, float(agent.gamma))
     model: ResumableSAC
     if model_path is None:
         model = build_sac(agent, venv, int(cfg.seed), settings)
@@ -160,7 +166,8 @@ def _learn(
         # same episodes again for the cloning term, but its replay buffer starts empty.
         demos = demonstrations(ReachEnv(settings), int(agent.demonstrations), int(cfg.seed))
         if model_path is None:
-            fill_replay(model, demos)
+            shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
+            fill_replay(model, shaped)
         if float(agent.bc_weight) > 0:
             DemonstrationCloning(model, demos, float(agent.bc_weight), int(cfg.seed))
         reached = sum(d.reason == "reached" for d in demos) / len(demos)
