@@ -94,6 +94,9 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.vec_env=threads"], ["agent.vec_env='threads'", "dummy, subproc"]),
         (["train.gains=best"], ["train.gains='best'", "tuned, config"]),
         (["agent.n_envs=0"], ["agent.n_envs=0", "≥ 1"]),
+        (["agent.shaping=-1"], ["agent.shaping=-1", "≥ 0"]),
+        (["agent.relabel=0.5", "agent.shaping=3"], ["agent.relabel=0.5", "agent.shaping=3.0"]),
+        (["agent.bc_weight=0.4"], ["agent.bc_weight=0.4", "agent.demonstrations"]),
     ],
 )
 def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:

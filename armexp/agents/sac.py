@@ -11,7 +11,6 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.relabel import GoalRelabelBuffer
-from armexp.config import ConfigError
 from armexp.envs.reach import ReachSettings
 
 
@@ -36,11 +35,6 @@ def sac_kwargs(agent: DictConfig, settings: ReachSettings | None = None) -> dict
     (`armexp.agents.relabel`), which needs the environment's reward ``settings``.
     """
     extra: dict[str, Any] = {}
-    if float(agent.relabel) > 0 and float(agent.shaping) > 0:
-        raise ConfigError(
-            f"agent.relabel={agent.relabel} with agent.shaping={agent.shaping} is not allowed: "
-            "relabelled rewards would not be shaped; set one of them to 0."
-        )
     if float(agent.relabel) > 0:
         if settings is None:
             raise ValueError("agent.relabel > 0 needs the environment's settings for its rewards.")

@@ -157,6 +157,7 @@ def validate(cfg: DictConfig) -> None:
     """Check field values against their schema checks, then the cross-field rules."""
     _walk(cfg, "")
     _cross_checks(cfg)
+    _agent_checks(cfg)
 
 
 def _walk(node: Any, path: str) -> None:
@@ -251,6 +252,21 @@ def _cross_checks(cfg: DictConfig) -> None:
                 obj.rise_low,
                 f"it must be below tuner.objective.rise_high={obj.rise_high}",
             )
+
+
+def _agent_checks(cfg: DictConfig) -> None:
+    agent = cfg.get("agent")
+    if agent is None or OmegaConf.is_missing(cfg, "agent"):
+        return
+    if agent.relabel > 0 and agent.shaping > 0:
+        raise fail(
+            "agent.relabel", agent.relabel,
+            f"it must be 0 with agent.shaping={agent.shaping} (relabelled rewards are unshaped)",
+        )  # fmt: skip
+    if agent.bc_weight > 0 and agent.demonstrations == 0:
+        raise fail(
+            "agent.bc_weight", agent.bc_weight, "it must be 0 without agent.demonstrations to clone"
+        )
 
 
 def _need_whole_periods(key: str, value: float, dt: float) -> None:
