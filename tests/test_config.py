@@ -97,6 +97,7 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.shaping=-1"], ["agent.shaping=-1", "≥ 0"]),
         (["agent.relabel=0.5", "agent.shaping=3"], ["agent.relabel=0.5", "agent.shaping=3.0"]),
         (["agent.bc_weight=0.4"], ["agent.bc_weight=0.4", "agent.demonstrations"]),
+        (["agent.demo_margin=0"], ["agent.demo_margin=0", "> 0, or null"]),
     ],
 )
 def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:

@@ -39,11 +39,18 @@ class Demonstration:
         return int(self.rewards.shape[0])
 
 
-def planned_actions(env: ReachEnv, config: Array) -> np.ndarray:
+def planned_actions(env: ReachEnv, config: Array, margin: float | None = None) -> np.ndarray:
     """Normalised velocity references (K, n) that move q_d from ``q0`` along the least-time grid
-    path to ``config`` and then hold, never beyond the velocity bounds."""
+    path to ``config`` and then hold, never beyond the velocity bounds.
+
+    The path keeps the tip ``margin`` from every obstacle where such a path exists within the
+    workspace's time limit, else the environment's path margin.
+    """
     s = env.settings
-    cells, cell_time = s.shortest_path(config)
+    try:
+        cells, cell_time = s.shortest_path(config, margin)
+    except ValueError:
+        cells, cell_time = s.shortest_path(config)
     cells[0] = s.q0  # the grid's start cell is q0 rounded to the grid
     period = s.action_period
     bound = np.asarray(s.velocity_bound, dtype=np.float64)
@@ -60,10 +67,10 @@ def planned_actions(env: ReachEnv, config: Array) -> np.ndarray:
     return out
 
 
-def demonstrate(env: ReachEnv, index: int, seed: int) -> Demonstration:
-    """The planned episode to workspace target ``index``; it ends as the environment says (or
-    is cut, unended, when the planned actions run out)."""
-    actions = planned_actions(env, env.workspace.configs[index])
+def demonstrate(env: ReachEnv, index: int, seed: int, margin: float | None = None) -> Demonstration:
+    """The planned episode to workspace target ``index`` (`planned_actions`); it ends as the
+    environment says (or is cut, unended, when the planned actions run out)."""
+    actions = planned_actions(env, env.workspace.configs[index], margin)
     obs, _ = env.reset(seed=seed, options={"target": env.workspace.points[index]})
     rows: list[tuple[Array, Array, Array, float, bool]] = []
     info: dict = {"reason": ""}
@@ -79,11 +86,14 @@ def demonstrate(env: ReachEnv, index: int, seed: int) -> Demonstration:
     )
 
 
-def demonstrations(env: ReachEnv, episodes: int, seed: int) -> list[Demonstration]:
+def demonstrations(
+    env: ReachEnv, episodes: int, seed: int, margin: float | None = None
+) -> list[Demonstration]:
     """``episodes`` planned episodes to random workspace targets (the same ones for a seed)."""
     rng = np.random.default_rng(seed)
     return [
-        demonstrate(env, int(rng.integers(len(env.workspace))), seed + i) for i in range(episodes)
+        demonstrate(env, int(rng.integers(len(env.workspace))), seed + i, margin)
+        for i in range(episodes)
     ]
 
 

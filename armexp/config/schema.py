@@ -175,6 +175,8 @@ class AgentConfig:
     relabel: float = checked(0.0, between(0.0, 1.0))
     #: Planner episodes put in the replay buffer before training (`armexp.agents.demonstrations`).
     demonstrations: int = checked(0, at_least(0))
+    #: Obstacle clearance (m) of the demonstrated paths where possible (None: env.path_margin).
+    demo_margin: float | None = None
     #: Weight of the behaviour-cloning term on those demonstrations (`armexp.agents.cloning`).
     bc_weight: float = checked(0.0, nonnegative())
     #: Reward per second of the planner's time to go in potential shaping (`armexp.agents.shaping`).

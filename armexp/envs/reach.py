@@ -84,12 +84,14 @@ class ReachSettings:
             cells=self.workspace_cells,
         )
 
-    def shortest_path(self, config: Array) -> tuple[Array, float]:
+    def shortest_path(self, config: Array, path_margin: float | None = None) -> tuple[Array, float]:
         """`armexp.envs.workspace.shortest_path` from ``q0`` to the grid cell ``config`` on the
-        grid of `workspace`."""
+        grid of `workspace`, keeping the tip ``path_margin`` (default: the environment's) from
+        every obstacle."""
+        margin = self.path_margin if path_margin is None else path_margin
         return shortest_path(
             self.plant.arm.lengths_array, self.joint_lower, self.joint_upper, self.q0,
-            self.velocity_bound, self.obstacles, config, path_margin=self.path_margin,
+            self.velocity_bound, self.obstacles, config, path_margin=margin,
             max_time=self.max_target_time, cells=self.workspace_cells,
         )  # fmt: skip
 

@@ -164,7 +164,9 @@ def _learn(
     if int(agent.demonstrations):
         # Inside the wall-time budget: `stats` started its clock above. A resumed run plans the
         # same episodes again for the cloning term, but its replay buffer starts empty.
-        demos = demonstrations(ReachEnv(settings), int(agent.demonstrations), int(cfg.seed))
+        demos = demonstrations(
+            ReachEnv(settings), int(agent.demonstrations), int(cfg.seed), agent.demo_margin
+        )
         if model_path is None:
             shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
             fill_replay(model, shaped)
