@@ -59,11 +59,9 @@ def _shaped_episode(
     env = ReachEnv(settings)
     venv = ShapedRewards(VecMonitor(DummyVecEnv([lambda: env])), potential, GAMMA)
     venv.seed(11)
+    venv.set_options({"target": env.workspace.points[index]})
+    obs = [venv.reset()[0]]
     actions = planned_actions(env, env.workspace.configs[index])
-    venv.reset()
-    env.reset(seed=11, options={"target": env.workspace.points[index]})
-    obs = [env._observation()]
-    venv._phi = venv._potentials(np.array(obs))  # the episode above replaces the seeded reset
     shaped, table_i = [], []
     for action in actions:
         o, r, done, infos = venv.step(action[None])

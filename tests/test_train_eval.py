@@ -190,13 +190,13 @@ def test_resume_of_a_finished_run_is_refused(
     assert "FINISHED" in err and err.count("\n") == 0
 
 
-def test_train_with_demonstrations_cloning_and_relabelling_logs_the_demonstrations(
-    runs_dir: Path,
+@pytest.mark.parametrize("aid", ["agent.relabel=0.5", "agent.shaping=30"])
+def test_train_with_demonstrations_cloning_and_an_aid_logs_the_demonstrations(
+    runs_dir: Path, aid: str
 ) -> None:
     rc = main(
         ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150",
-         "agent.demonstrations=6", "agent.relabel=0.5", "agent.bc_weight=0.5",
-         "env.max_steps=1000",
+         "agent.demonstrations=6", "agent.bc_weight=0.5", aid, "env.max_steps=1000",
          f"tracking.runs_dir={runs_dir}"]
     )  # fmt: skip
     assert rc == 0
