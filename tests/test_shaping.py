@@ -7,11 +7,11 @@ import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
 from armexp.agents.demonstrations import demonstrate, planned_actions
-from armexp.agents.shaping import ShapedRewards, TimeToGoPotential, _fill
+from armexp.agents.shaping import ShapedRewards, TimeToGoPotential
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv, ReachSettings
-from armexp.envs.workspace import breadth_first_times, time_to_go
+from armexp.envs.workspace import breadth_first_times, fill_unreached, time_to_go
 
 GAMMA = 0.995
 
@@ -47,7 +47,7 @@ def test_filled_times_are_finite_and_grow_one_cell_at_a_time() -> None:
     times = np.full((6, 5), np.inf)
     times[0, 0] = 0.0
     times[5, 4] = 1.0
-    filled = _fill(times, 0.5)
+    filled = fill_unreached(times, 0.5)
     assert np.isfinite(filled).all() and filled[0, 0] == 0.0 and filled[5, 4] == 1.0
     assert filled[2, 1] == 1.0  # two Chebyshev moves from (0, 0)
     assert filled[4, 4] == 1.5  # one move from (5, 4) beats four from (0, 0)

@@ -28,7 +28,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from armexp.agents.demonstrations import Demonstration
 from armexp.envs.reach import ReachSettings
-from armexp.envs.workspace import JointGrid, joint_grid, time_to_go
+from armexp.envs.workspace import JointGrid, fill_unreached, time_to_go
 from armexp.sim.model import Array
 
 #: Observation layout of `armexp.envs.kernel.observe` (eq. 5a): target, then q from index 6.
@@ -48,11 +48,7 @@ class TimeToGoPotential:
         self.scale = float(scale)
         self.threshold = settings.reach_threshold
         self.n = int(settings.q0.shape[0])
-        self.grid: JointGrid = joint_grid(
-            settings.plant.arm.lengths_array, settings.joint_lower, settings.joint_upper,
-            settings.velocity_bound, settings.obstacles, settings.path_margin,
-            settings.workspace_cells,
-        )  # fmt: skip
+        self.grid: JointGrid = settings.joint_grid()
         self._maps: OrderedDict[tuple[float, ...], Array] = OrderedDict()
         self._cache = int(cache)
 
@@ -61,8 +57,8 @@ class TimeToGoPotential:
         if key in self._maps:
             self._maps.move_to_end(key)
             return self._maps[key]
-        t = _fill(time_to_go(self.grid, np.asarray(target, dtype=np.float64), self.threshold),
-                  self.grid.dt)  # fmt: skip
+        t = time_to_go(self.grid, np.asarray(target, dtype=np.float64), self.threshold)
+        t = fill_unreached(t, self.grid.dt)
         self._maps[key] = t
         if len(self._maps) > self._cache:
             self._maps.popitem(last=False)
@@ -96,23 +92,6 @@ class TimeToGoPotential:
         return replace(demo, rewards=rewards)
 
 
-def _fill(times: Array, dt: float) -> Array:
-    """``times`` with every inf replaced by the least neighbour time plus ``dt``, repeatedly."""
-    if not np.isfinite(times).any():
-        return np.zeros_like(times)
-    n = times.ndim
-    moves = np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
-    t = times.copy()
-    while not np.isfinite(t).all():
-        padded = np.pad(t, 1, constant_values=np.inf)
-        best = t.copy()
-        for move in moves:
-            window = tuple(slice(1 + m, 1 + m + k) for m, k in zip(move, t.shape, strict=True))
-            best = np.minimum(best, padded[window] + dt)
-        t = best
-    return t
-
-
 class ShapedRewards(VecEnvWrapper):
     """Training environments whose step rewards are shaped by ``potential`` (see module doc).
 
@@ -139,13 +118,15 @@ class ShapedRewards(VecEnvWrapper):
         obs, rewards, dones, infos = self.venv.step_wait()
         assert isinstance(obs, np.ndarray)  # Reach-v0's Box observation
         shaped = np.asarray(rewards, dtype=np.float64).copy()
+        now = self._potentials(obs)  # after an auto-reset: the next episode's first state
         for i, info in enumerate(infos):
             info["table_i_reward"] = float(rewards[i])
-            if dones[i] and not info.get("TimeLimit.truncated", False):
-                after = 0.0
+            if not dones[i]:
+                after = now[i]
+            elif info.get("TimeLimit.truncated", False):
+                after = self.potential(info["terminal_observation"])
             else:
-                last = info["terminal_observation"] if dones[i] else obs[i]
-                after = self.potential(last)
+                after = 0.0
             shaped[i] += self.gamma * after - self._phi[i]
-        self._phi = self._potentials(obs)
+        self._phi = now
         return obs, shaped.astype(np.float32), dones, infos

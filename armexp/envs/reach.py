@@ -20,7 +20,13 @@ from gymnasium import spaces
 from armexp.envs.geometry import Array, joint_positions
 from armexp.envs.kernel import env_step, observe
 from armexp.envs.render import Canvas
-from armexp.envs.workspace import Workspace, build_workspace, shortest_path
+from armexp.envs.workspace import (
+    JointGrid,
+    Workspace,
+    build_workspace,
+    joint_grid,
+    shortest_path,
+)
 from armexp.sim.core import Simulator
 from armexp.sim.model import Plant
 
@@ -83,6 +89,13 @@ class ReachSettings:
             max_time=self.max_target_time if max_time is None else max_time,
             cells=self.workspace_cells,
         )
+
+    def joint_grid(self) -> JointGrid:
+        """`armexp.envs.workspace.joint_grid` of `workspace`'s search (path margin included)."""
+        return joint_grid(
+            self.plant.arm.lengths_array, self.joint_lower, self.joint_upper,
+            self.velocity_bound, self.obstacles, self.path_margin, self.workspace_cells,
+        )  # fmt: skip
 
     def shortest_path(self, config: Array, path_margin: float | None = None) -> tuple[Array, float]:
         """`armexp.envs.workspace.shortest_path` from ``q0`` to the grid cell ``config`` on the

@@ -96,6 +96,28 @@ def joint_grid(
     return JointGrid(axes, tip, free, dt)
 
 
+def _moves(n: int) -> np.ndarray:
+    """The 3ⁿ grid moves of at most one cell per joint (the zero move included)."""
+    return np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
+
+
+def fill_unreached(times: Array, dt: float) -> Array:
+    """``times`` with every inf replaced by the least neighbour time plus ``dt``, repeatedly
+    (all zeros when nothing is finite)."""
+    if not np.isfinite(times).any():
+        return np.zeros_like(times)
+    t = times.copy()
+    moves = _moves(t.ndim)
+    while not np.isfinite(t).all():
+        padded = np.pad(t, 1, constant_values=np.inf)
+        best = t.copy()
+        for move in moves:
+            window = tuple(slice(1 + m, 1 + m + k) for m, k in zip(move, t.shape, strict=True))
+            best = np.minimum(best, padded[window] + dt)
+        t = best
+    return t
+
+
 def breadth_first_times(free: np.ndarray, start: np.ndarray, dt: float, layers: int) -> Array:
     """Least time (s) from the ``start`` cells to every ``free`` cell in at most ``layers`` moves
     of one cell per joint (inf beyond)."""
@@ -231,7 +253,7 @@ def shortest_path(
     cell = tuple(int(np.rint((config[j] - axes[j][0]) / step[j])) for j in range(n))
     if not np.isfinite(times[cell]):
         raise ValueError(f"configuration {list(config)} is not reachable from q0 on the grid.")
-    moves = np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
+    moves = _moves(n)
     shape = np.array(times.shape)
     path = [cell]
     while times[path[-1]] > 0:

@@ -161,16 +161,17 @@ def _learn(
             "wall_s": stats.wall(),
         }
 
-    if int(agent.demonstrations):
+    cloning = float(agent.bc_weight) > 0
+    if int(agent.demonstrations) and (model_path is None or cloning):
         # Inside the wall-time budget: `stats` started its clock above. A resumed run plans the
-        # same episodes again for the cloning term, but its replay buffer starts empty.
+        # same episodes again only for the cloning term; its replay buffer starts empty.
         demos = demonstrations(
             ReachEnv(settings), int(agent.demonstrations), int(cfg.seed), agent.demo_margin
         )
         if model_path is None:
             shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
             fill_replay(model, shaped)
-        if float(agent.bc_weight) > 0:
+        if cloning:
             DemonstrationCloning(model, demos, float(agent.bc_weight), int(cfg.seed))
         reached = sum(d.reason == "reached" for d in demos) / len(demos)
         mlflow.log_metrics(
