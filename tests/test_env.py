@@ -132,6 +132,29 @@ def test_collision_ends_with_the_collision_penalty(paper_settings: ReachSettings
     assert (info["reason"], reward, info["collision"]) == ("collision", -100.0, True)
 
 
+def test_a_training_clearance_collides_earlier_and_observes_the_same(
+    paper_settings: ReachSettings,
+) -> None:
+    # Swinging the forearm from q0 moves the tip right, about 2.3 cm above this obstacle.
+    obstacle = np.array([[1.1, 0.72, 0.05]])
+    plain = _with(paper_settings, obstacles=obstacle)
+    grown = _with(paper_settings, obstacles=obstacle, collision_clearance=0.04)
+    action = np.array([0.0, -1.0], dtype=np.float32)
+    o1, _ = plain.reset(seed=0, options={"target": (1.6, 0.8)})
+    o2, _ = grown.reset(seed=0, options={"target": (1.6, 0.8)})
+    np.testing.assert_array_equal(o1, o2)
+    for _ in range(30):
+        o1, r1, _, _, i1 = plain.step(action)
+        o2, r2, done, _, i2 = grown.step(action)
+        # The observed distance is to the true surface in both.
+        np.testing.assert_array_equal(o1, o2)
+        if done:
+            break
+    assert i2["reason"] == "collision" and r2 == -100.0
+    assert 0.0 < o2[-1] < 0.04  # outside the obstacle, inside the clearance
+    assert i1["reason"] == "" and not i1["collision"]
+
+
 def test_tip_that_clips_an_obstacle_between_actions_collides() -> None:
     obstacle = np.array([[0.5, 0.0, 0.05]])
     assert segment_hits(np.array([0.4, 0.04]), np.array([0.6, 0.04]), obstacle)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import tempfile
 import time
@@ -191,22 +192,37 @@ class Budget(BaseCallback):
         self.steps = steps
         self.seconds = seconds
         self.reason = ""
+        #: Seconds kept back from the time budget for work after training that counts in it.
+        self.reserve: Callable[[], float] = lambda: 0.0
 
     def _on_step(self) -> bool:
         if self.stats.episodes >= self.episodes:
             self.reason = "episodes"
         elif self.steps is not None and self.num_timesteps >= self.steps:
             self.reason = "steps"
-        elif self.seconds is not None and self.stats.wall() >= self.seconds:
+        elif self.seconds is not None and self.stats.wall() + self.reserve() >= self.seconds:
             self.reason = "time"
         return not self.reason
+
+    def used(self, num_timesteps: int) -> float:
+        """The share of the budget spent (0 to 1): the furthest of episodes, steps and time."""
+        shares = [self.stats.episodes / self.episodes]
+        if self.steps:
+            shares.append(num_timesteps / self.steps)
+        if self.seconds:
+            shares.append(self.stats.wall() / self.seconds)
+        return min(max(shares), 1.0)
 
 
 class HeldOutEval(BaseCallback):
     """Every ``every`` environment steps, the deterministic policy on fixed held-out targets:
     logs ``eval/success_rate``, ``eval/collision_rate`` and ``eval/mean_return`` against the
-    step, with ``eval/wall_s`` the training wall time so far. The time spent here is taken off
-    the training clock, so a wall-time budget counts training only."""
+    step, with ``eval/wall_s`` the training wall time so far.
+
+    The time spent here is taken off the training clock, so a wall-time budget counts training
+    only, unless ``keep_best``: then the checks choose the model (`restore_best`) and so are
+    part of training, and their time counts. The best check is the highest success rate, ties
+    broken by the mean return, and a later check wins a full tie."""
 
     def __init__(
         self,
@@ -215,6 +231,7 @@ class HeldOutEval(BaseCallback):
         env: Any,
         targets: list[np.ndarray],
         stats: EpisodeStats,
+        keep_best: bool = False,
     ) -> None:
         super().__init__()
         self.run_id = run_id
@@ -222,9 +239,13 @@ class HeldOutEval(BaseCallback):
         self.env = env
         self.targets = targets
         self.stats = stats
+        self.keep_best = keep_best
         self.client = MlflowClient()
         self._last = 0
         self.history: list[dict[str, float]] = []
+        self.last_seconds = 0.0
+        self.best: dict[str, float] | None = None
+        self._best_policy: dict[str, Any] | None = None
 
     def _on_step(self) -> bool:
         if self.num_timesteps - self._last >= self.every:
@@ -241,7 +262,9 @@ class HeldOutEval(BaseCallback):
             episode = rollout(self.env, self.model, {"target": target}, seed=i)
             reasons.append(episode.reason)
             returns.append(episode.episode_return)
-        self.stats.wall_offset -= time.perf_counter() - started
+        self.last_seconds = time.perf_counter() - started
+        if not self.keep_best:
+            self.stats.wall_offset -= self.last_seconds
         point = {
             "eval/success_rate": float(np.mean([r == "reached" for r in reasons])),
             "eval/collision_rate": float(np.mean([r == "collision" for r in reasons])),
@@ -252,4 +275,18 @@ class HeldOutEval(BaseCallback):
         now = int(time.time() * 1000)
         metrics = [Metric(k, v, now, self.num_timesteps) for k, v in point.items()]
         retry(lambda: self.client.log_batch(self.run_id, metrics=metrics))
+        if self.keep_best and (self.best is None or _score(point) >= _score(self.best)):
+            self.best = self.history[-1]
+            self._best_policy = copy.deepcopy(self.model.policy.state_dict())
         return point
+
+    def restore_best(self) -> dict[str, float]:
+        """Loads the best checked policy into the model; returns that check's history entry."""
+        if self.best is None or self._best_policy is None:
+            raise RuntimeError("no held-out check has run, so there is no best policy to keep.")
+        self.model.policy.load_state_dict(self._best_policy)
+        return self.best
+
+
+def _score(point: dict[str, float]) -> tuple[float, float]:
+    return point["eval/success_rate"], point["eval/mean_return"]

@@ -158,6 +158,7 @@ def validate(cfg: DictConfig) -> None:
     _walk(cfg, "")
     _cross_checks(cfg)
     _agent_checks(cfg)
+    _train_checks(cfg)
 
 
 def _walk(node: Any, path: str) -> None:
@@ -254,6 +255,14 @@ def _cross_checks(cfg: DictConfig) -> None:
             )
 
 
+def _train_checks(cfg: DictConfig) -> None:
+    train = cfg.get("train")
+    if train is not None and train.keep_best and not train.eval_every:
+        raise fail(
+            "train.keep_best", True, "it must be false with train.eval_every=0 (no checks to keep)"
+        )
+
+
 def _agent_checks(cfg: DictConfig) -> None:
     agent = cfg.get("agent")
     if agent is None or OmegaConf.is_missing(cfg, "agent"):
@@ -266,6 +275,9 @@ def _agent_checks(cfg: DictConfig) -> None:
     margin = agent.demo_margin
     if margin is not None and not (isinstance(margin, int | float) and margin > 0):
         raise fail("agent.demo_margin", margin, "it must be a number > 0, or null")
+    final = agent.lr_final
+    if final is not None and not (isinstance(final, int | float) and final > 0):
+        raise fail("agent.lr_final", final, "it must be a number > 0, or null")
     if agent.bc_weight > 0 and agent.demonstrations == 0:
         raise fail(
             "agent.bc_weight", agent.bc_weight, "it must be 0 without agent.demonstrations to clone"

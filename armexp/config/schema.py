@@ -165,6 +165,9 @@ class AgentConfig:
     learning_starts: int = checked(1000, at_least(0))
     gamma: float = checked(0.995, between(0.0, 1.0))
     learning_rate: float = checked(0.001, _pos)
+    #: Learning rate at the end of the budget, reached linearly from ``learning_rate`` over
+    #: whichever budget (episodes, steps or minutes) runs out first (None: constant).
+    lr_final: float | None = None
     episodes: int = checked(20000, at_least(1))
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))
@@ -179,6 +182,9 @@ class AgentConfig:
     demo_margin: float | None = None
     #: Weight of the behaviour-cloning term on those demonstrations (`armexp.agents.cloning`).
     bc_weight: float = checked(0.0, nonnegative())
+    #: Training only: a collision is counted when the tip comes this close (m) to an obstacle,
+    #: so the policy keeps clear of it; checks while training and `armexp eval` use Table I's.
+    clearance: float = checked(0.0, nonnegative())
     #: Reward per second of the planner's time to go in potential shaping (`armexp.agents.shaping`).
     shaping: float = checked(0.0, nonnegative())
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
@@ -285,6 +291,10 @@ class TrainStageConfig:
     eval_every: int = checked(0, at_least(0))
     eval_targets: int = checked(50, at_least(1))
     eval_seed: int = checked(10_007, at_least(0))
+    #: With eval_every: the final model is the checked policy with the best held-out success
+    #: (the policy as trained is checked once more at the end); the checks then count as
+    #: training time.
+    keep_best: bool = False
     progress: bool = True
     torch_threads: int | None = None
 

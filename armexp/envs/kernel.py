@@ -87,6 +87,7 @@ def env_step(
     lower: np.ndarray,
     upper: np.ndarray,
     obstacles: np.ndarray,
+    collide: np.ndarray,
     target: np.ndarray,
     tip: np.ndarray,
     params: np.ndarray,
@@ -99,6 +100,8 @@ def env_step(
 
     Returns (reward, status, controller steps completed, tip error). The checks run in the order
     collision, joint limit, reach, so a step that collides while reaching is a collision.
+    Collisions are checked against the circles of ``collide`` (``obstacles``, or those grown by
+    a training clearance); the observation measures ``obstacles``.
     """
     n = state.shape[0] // 4
     dqd = np.empty(n)
@@ -123,7 +126,7 @@ def env_step(
         for j in range(n):
             if q[j] < lower[j] or q[j] > upper[j]:
                 outside = True
-        if segment_enters(x0, y0, tip[0], tip[1], obstacles):
+        if segment_enters(x0, y0, tip[0], tip[1], collide):
             status = COLLISION
             reward = -params[P_COLLISION]
         elif outside:

@@ -64,6 +64,9 @@ class ReachSettings:
     min_target_distance: float = 0.2
     max_target_time: float = 12.0
     workspace_cells: int = 40_000
+    #: A training aid, not Table I (0): a step also collides when the tip's path comes within
+    #: this distance (m) of an obstacle's surface. Observations and targets are unchanged.
+    collision_clearance: float = 0.0
 
     @property
     def hold_steps(self) -> int:
@@ -125,7 +128,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Rewards (Table I)
     * ``+reach_reward`` (200) when the tip error falls below ``reach_threshold`` (0.04 m);
-    * ``−collision_penalty`` (100) when the tip's path enters an obstacle;
+    * ``−collision_penalty`` (100) when the tip's path enters an obstacle (or comes within
+      ``collision_clearance`` of one, a training aid that is 0 in Table I);
     * ``−boundary_penalty`` (50) when a joint leaves its limits (or the simulation diverges);
     * otherwise ``−log10(1 + error − threshold)``, and ``growth_penalty`` (1) less when the
       error grew during the step.
@@ -170,6 +174,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._lower = np.asarray(s.joint_lower, dtype=np.float64)
         self._upper = np.asarray(s.joint_upper, dtype=np.float64)
         self._obstacles = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 3)
+        self._collide = self._obstacles + [0.0, 0.0, s.collision_clearance]
         self.workspace = s.workspace()
         self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0)
 
@@ -237,8 +242,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         reward, status, done, self.error = env_step(
             sim.state, sim._work, sim._model, sim.gains, sim.kind, sim.plant.dt, sim._key,
             sim.step_index, self._hold, np.asarray(action, dtype=np.float64), self._bound,
-            self._lower, self._upper, self._obstacles, self.target, self.tip, self._params,
-            self._obs_low, self._obs_high, obs, log,
+            self._lower, self._upper, self._obstacles, self._collide, self.target, self.tip,
+            self._params, self._obs_low, self._obs_high, obs, log,
         )  # fmt: skip
         sim.step_index += done
         if done < self._hold:

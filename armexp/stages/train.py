@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import replace
 from typing import Any
 
 import mlflow
@@ -130,7 +131,9 @@ def _learn(
     agent, tr = cfg.agent, cfg.train
     if tr.torch_threads:
         torch.set_num_threads(int(tr.torch_threads))
-    settings = settings_from_config(cfg, gains=gains)
+    true_settings = settings_from_config(cfg, gains=gains)
+    clearance = float(agent.clearance)
+    settings = replace(true_settings, collision_clearance=clearance)
     venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
     potential = None
     if float(agent.shaping) > 0:
@@ -153,6 +156,7 @@ def _learn(
     budget = Budget(
         stats, int(agent.episodes), total, None if minutes is None else float(minutes) * 60.0
     )
+    model.budget_used = lambda: budget.used(model.num_timesteps)
 
     def snapshot() -> dict[str, Any]:
         return {
@@ -165,9 +169,11 @@ def _learn(
     if int(agent.demonstrations) and (model_path is None or cloning):
         # Inside the wall-time budget: `stats` started its clock above. A resumed run plans the
         # same episodes again only for the cloning term; its replay buffer starts empty.
-        demos = demonstrations(
-            ReachEnv(settings), int(agent.demonstrations), int(cfg.seed), agent.demo_margin
-        )
+        margin = agent.demo_margin
+        if margin is None and clearance > 0:
+            # Paths as clear of the grown obstacles as the planner keeps of the true ones.
+            margin = settings.path_margin + clearance
+        demos = demonstrations(ReachEnv(settings), int(agent.demonstrations), int(cfg.seed), margin)
         if model_path is None:
             shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
             fill_replay(model, shaped)
@@ -180,11 +186,18 @@ def _learn(
         )  # fmt: skip
     checkpoint = Checkpoint(int(tr.checkpoint_every), snapshot)
     callbacks: list[Any] = [stats, budget, checkpoint]
+    heldout = None
     if tr.eval_every:
-        probe = ReachEnv(settings)
+        probe = ReachEnv(true_settings)
         rng = np.random.default_rng(int(tr.eval_seed))
         targets = [probe.workspace.sample(rng) for _ in range(int(tr.eval_targets))]
-        callbacks.append(HeldOutEval(run_id, int(tr.eval_every), probe, targets, stats))
+        heldout = HeldOutEval(
+            run_id, int(tr.eval_every), probe, targets, stats, keep_best=bool(tr.keep_best)
+        )
+        if heldout.keep_best:
+            # The closing check counts in the budget too: keep the last one's time for it.
+            budget.reserve = lambda: heldout.last_seconds
+        callbacks.append(heldout)
     if tr.progress:
         callbacks.append(Progress(total, stats, initial=done_steps))
     started = time.perf_counter()
@@ -205,9 +218,16 @@ def _learn(
     elapsed = time.perf_counter() - started
     stats.flush()
     checkpoint.save()
+    kept: dict[str, float] = {}
+    if heldout is not None and heldout.keep_best:
+        if not heldout.history or heldout.history[-1]["step"] != model.num_timesteps:
+            heldout.evaluate()  # the policy as trained competes too
+        best = heldout.restore_best()
+        kept = {"final/kept_step": best["step"], "final/kept_success": best["eval/success_rate"]}
     log_model(model, MODEL_DIR, snapshot())
     steps = int(model.num_timesteps)
     summary = {
+        **kept,
         "final/env_steps": float(steps),
         "final/episodes": float(stats.episodes),
         "final/success_rate_100": stats.success_rate,
