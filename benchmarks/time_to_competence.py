@@ -11,9 +11,10 @@ It runs the real stages against their own MLflow store (``runs/bench``, browse i
 
 1. ``armexp tune`` (the paper's CSO budget) for the adaptive gains, and ``controller=pid`` for
    the baseline;
-2. ``armexp train experiment=quick`` with ``agent.max_minutes`` of training wall time
-   (held-out checks during training are not counted), evaluating the deterministic policy on
-   50 held-out targets every ``--eval-every`` steps;
+2. ``armexp train experiment=quick`` with ``agent.max_minutes`` of training wall time,
+   evaluating the deterministic policy on 50 held-out targets every ``--eval-every`` steps
+   (these checks count in the wall time when they choose the final model, ``train.keep_best``;
+   otherwise they are left out of it);
 3. ``armexp eval`` on the four paper tasks and 100 held-out random targets (a seed apart from
    both training and the in-training checks), for both controllers.
 
@@ -90,6 +91,9 @@ def main() -> int:
     m, tm = ev.data.metrics, train.data.metrics
     print(f"\ntraining: {tm['final/env_steps']:.0f} steps, {tm['final/episodes']:.0f} episodes, "
           f"{tm['final/wall_s'] / 60:.1f} min")  # fmt: skip
+    if "final/kept_step" in tm:
+        print(f"final model: the check at {tm['final/kept_step']:.0f} steps "
+              f"({tm['final/kept_success']:.2f} held-out success)")  # fmt: skip
     ok = True
     for label in ("adaptive", "pid"):
         rate = m[f"{label}.random.success_rate"]

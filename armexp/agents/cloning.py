@@ -12,6 +12,12 @@ with B SAC's replayed batch, D a batch of demonstrated states s_d and planner ac
 the actor's deterministic (squashed mean) action. Scaling by mean |Q| makes ``w`` independent of
 the reward's scale, as TD3+BC's normalisation does. The term is added as a gradient just before
 each actor optimiser step, so SB3's own SAC update runs unchanged.
+
+With ``q_filter`` only the demonstrated steps whose action the critic values above the actor's
+own, Q(s_d, a_d) > Q(s_d, μ(s_d)), are cloned (DDPGfD's Q-filter). Where the planner's paths
+split around an obstacle, nearby states carry demonstrations that pass it on different sides;
+cloning all of them pulls the actor towards their mean, straight into the obstacle, while the
+filter lets the critic choose a side.
 """
 
 from __future__ import annotations
@@ -29,13 +35,21 @@ class DemonstrationCloning:
     """Adds the behaviour-cloning gradient of the reached ``demos`` to every actor update of
     ``model`` (a batch of ``model.batch_size`` demonstrated steps each)."""
 
-    def __init__(self, model: SAC, demos: list[Demonstration], weight: float, seed: int) -> None:
+    def __init__(
+        self,
+        model: SAC,
+        demos: list[Demonstration],
+        weight: float,
+        seed: int,
+        q_filter: bool = False,
+    ) -> None:
         reached = [d for d in demos if d.reason == "reached"]
         if not reached:
             raise ValueError("behaviour cloning needs at least one demonstration that reaches.")
         device = model.device
         self.model = model
         self.weight = float(weight)
+        self.q_filter = q_filter
         self.obs = torch.as_tensor(np.concatenate([d.obs for d in reached]), device=device)
         self.actions = torch.as_tensor(np.concatenate([d.actions for d in reached]), device=device)
         self.generator = torch.Generator(device=device).manual_seed(seed)
@@ -51,10 +65,15 @@ class DemonstrationCloning:
             len(self), (self.model.batch_size,), generator=self.generator, device=self.obs.device
         )
         obs, target = self.obs[index], self.actions[index]
-        with torch.no_grad():
-            q = torch.cat(self.model.critic(obs, target), dim=1).min(dim=1).values
         action = self.model.actor(obs, deterministic=True)
-        return self.weight * q.abs().mean() * ((action - target) ** 2).mean()
+        with torch.no_grad():
+            q = self._q(obs, target)
+            keep = (q > self._q(obs, action)).float() if self.q_filter else torch.ones_like(q)
+        error = ((action - target) ** 2).mean(dim=1)
+        return self.weight * q.abs().mean() * (keep * error).mean()
+
+    def _q(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return torch.cat(self.model.critic(obs, action), dim=1).min(dim=1).values
 
     def _add_gradient(self, optimizer: Any, args: Any, kwargs: Any) -> None:
         # SAC's actor gradient is already in .grad here; accumulating ours gives the sum's.

@@ -182,6 +182,8 @@ class AgentConfig:
     demo_margin: float | None = None
     #: Weight of the behaviour-cloning term on those demonstrations (`armexp.agents.cloning`).
     bc_weight: float = checked(0.0, nonnegative())
+    #: Clone only demonstrated actions the critic values above the actor's own (Q-filter).
+    bc_q_filter: bool = False
     #: Training only: a collision is counted when the tip comes this close (m) to an obstacle,
     #: so the policy keeps clear of it; checks while training and `armexp eval` use Table I's.
     clearance: float = checked(0.0, nonnegative())

@@ -174,7 +174,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._lower = np.asarray(s.joint_lower, dtype=np.float64)
         self._upper = np.asarray(s.joint_upper, dtype=np.float64)
         self._obstacles = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 3)
-        self._collide = self._obstacles + [0.0, 0.0, s.collision_clearance]
+        self._collide = self._obstacles + np.array([0.0, 0.0, s.collision_clearance])
         self.workspace = s.workspace()
         self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0)
 

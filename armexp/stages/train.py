@@ -11,6 +11,10 @@ With ``agent.demonstrations`` the replay buffer starts with that many planner ep
 and ``agent.bc_weight`` > 0 adds a behaviour-cloning term on them to the actor loss
 (`armexp.agents.cloning`, ``train/bc_loss``). ``agent.shaping`` > 0 trains on Table I's reward
 shaped by the planner's time to go (`armexp.agents.shaping`; logged episode rewards stay Table I's).
+``agent.clearance`` > 0 trains with collisions counted that close to the obstacles (held-out
+checks use Table I's), and ``agent.lr_final`` decays the learning rate over the budget.
+With ``train.eval_every`` the policy is checked on held-out targets while training
+(``eval/*``); ``train.keep_best`` makes the best check the final model.
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
 buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
@@ -178,7 +182,9 @@ def _learn(
             shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
             fill_replay(model, shaped)
         if cloning:
-            DemonstrationCloning(model, demos, float(agent.bc_weight), int(cfg.seed))
+            DemonstrationCloning(
+                model, demos, float(agent.bc_weight), int(cfg.seed), bool(agent.bc_q_filter)
+            )
         reached = sum(d.reason == "reached" for d in demos) / len(demos)
         mlflow.log_metrics(
             {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
