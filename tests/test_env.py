@@ -152,7 +152,7 @@ def test_a_training_clearance_collides_earlier_and_observes_the_same(
             break
     assert i2["reason"] == "collision" and r2 == -100.0
     assert 0.0 < o2[-1] < 0.04  # outside the obstacle, inside the clearance
-    assert i1["reason"] == "" and not i1["collision"]
+    assert i1["reason"] == "" and not i1["collision"] and r1 > -100.0
 
 
 def test_tip_that_clips_an_obstacle_between_actions_collides() -> None:
