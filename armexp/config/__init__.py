@@ -272,12 +272,6 @@ def _agent_checks(cfg: DictConfig) -> None:
             "agent.relabel", agent.relabel,
             f"it must be 0 with agent.shaping={agent.shaping} (relabelled rewards are unshaped)",
         )  # fmt: skip
-    margin = agent.demo_margin
-    if margin is not None and not (isinstance(margin, int | float) and margin > 0):
-        raise fail("agent.demo_margin", margin, "it must be a number > 0, or null")
-    final = agent.lr_final
-    if final is not None and not (isinstance(final, int | float) and final > 0):
-        raise fail("agent.lr_final", final, "it must be a number > 0, or null")
     if agent.bc_weight > 0 and agent.demonstrations == 0:
         raise fail(
             "agent.bc_weight", agent.bc_weight, "it must be 0 without agent.demonstrations to clone"

@@ -61,6 +61,11 @@ def each(check: Check, *, nonempty: bool = True) -> Check:
     return Check(ok, f"every entry must satisfy: {check.allowed}")
 
 
+def or_null(check: Check) -> Check:
+    """``check``, or the value left unset (None)."""
+    return Check(lambda v: v is None or check(v), f"{check.allowed}, or null")
+
+
 def checked(default: Any = None, check: Check | None = None, *, factory: Any = None) -> Any:
     """A dataclass field with a value check (``metadata['check']``)."""
     meta = {"check": check} if check is not None else {}

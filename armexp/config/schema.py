@@ -20,6 +20,7 @@ from armexp.config.checks import (
     each,
     nonnegative,
     one_of,
+    or_null,
     positive,
 )
 
@@ -167,7 +168,7 @@ class AgentConfig:
     learning_rate: float = checked(0.001, _pos)
     #: Learning rate at the end of the budget, reached linearly from ``learning_rate`` over
     #: whichever budget (episodes, steps or minutes) runs out first (None: constant).
-    lr_final: float | None = None
+    lr_final: float | None = checked(None, or_null(_pos))
     episodes: int = checked(20000, at_least(1))
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))
@@ -179,7 +180,7 @@ class AgentConfig:
     #: Planner episodes put in the replay buffer before training (`armexp.agents.demonstrations`).
     demonstrations: int = checked(0, at_least(0))
     #: Obstacle clearance (m) of the demonstrated paths where possible (None: env.path_margin).
-    demo_margin: float | None = None
+    demo_margin: float | None = checked(None, or_null(_pos))
     #: Weight of the behaviour-cloning term on those demonstrations (`armexp.agents.cloning`).
     bc_weight: float = checked(0.0, nonnegative())
     #: Clone only demonstrated actions the critic values above the actor's own (Q-filter).
