@@ -98,6 +98,8 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.relabel=0.5", "agent.shaping=3"], ["agent.relabel=0.5", "agent.shaping=3.0"]),
         (["agent.bc_weight=0.4"], ["agent.bc_weight=0.4", "agent.demonstrations"]),
         (["agent.demo_margin=0"], ["agent.demo_margin=0", "> 0, or null"]),
+        (["agent.bc_expert=true"], ["agent.bc_expert=True", "agent.bc_weight=0"]),
+        (["agent.expert_margin=0"], ["agent.expert_margin=0", "> 0"]),
         (["agent.lr_final=-0.001"], ["agent.lr_final=-0.001", "> 0, or null"]),
         (["train.keep_best=true"], ["train.keep_best=True", "train.eval_every=0"]),
     ],

@@ -190,7 +190,7 @@ def test_resume_of_a_finished_run_is_refused(
     assert "FINISHED" in err and err.count("\n") == 0
 
 
-@pytest.mark.parametrize("aid", ["agent.relabel=0.5", "agent.shaping=30"])
+@pytest.mark.parametrize("aid", ["agent.relabel=0.5", "agent.shaping=30", "agent.bc_expert=true"])
 def test_train_with_demonstrations_cloning_and_an_aid_logs_the_demonstrations(
     runs_dir: Path, aid: str
 ) -> None:

@@ -18,6 +18,10 @@ own, Q(s_d, a_d) > Q(s_d, μ(s_d)), are cloned (DDPGfD's Q-filter). Where the pl
 split around an obstacle, nearby states carry demonstrations that pass it on different sides;
 cloning all of them pulls the actor towards their mean, straight into the obstacle, while the
 filter lets the critic choose a side.
+
+With ``capacity`` > 0, D also holds up to that many further labelled steps (`add`, the newest
+replacing the oldest), such as the learner's own states labelled by the planner
+(`armexp.agents.expert`); the demonstrations stay.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ class DemonstrationCloning:
         weight: float,
         seed: int,
         q_filter: bool = False,
+        capacity: int = 0,
     ) -> None:
         reached = [d for d in demos if d.reason == "reached"]
         if not reached:
@@ -50,14 +55,33 @@ class DemonstrationCloning:
         self.model = model
         self.weight = float(weight)
         self.q_filter = q_filter
-        self.obs = torch.as_tensor(np.concatenate([d.obs for d in reached]), device=device)
-        self.actions = torch.as_tensor(np.concatenate([d.actions for d in reached]), device=device)
+        obs = np.concatenate([d.obs for d in reached])
+        actions = np.concatenate([d.actions for d in reached])
+        self._fixed = len(actions)
+        self._capacity = int(capacity)
+        self._added = 0
+        self.obs = torch.zeros((self._fixed + self._capacity, obs.shape[1]), device=device)
+        self.actions = torch.zeros((self._fixed + self._capacity, actions.shape[1]), device=device)
+        self.obs[: self._fixed] = torch.as_tensor(obs)
+        self.actions[: self._fixed] = torch.as_tensor(actions)
         self.generator = torch.Generator(device=device).manual_seed(seed)
         self.last_loss = float("nan")
         self._handle = model.actor.optimizer.register_step_pre_hook(self._add_gradient)
 
     def __len__(self) -> int:
-        return int(self.actions.shape[0])
+        """Steps to clone from: the demonstrated ones and those `add`ed (at most ``capacity``)."""
+        return self._fixed + min(self._added, self._capacity)
+
+    def add(self, obs: np.ndarray, actions: np.ndarray) -> None:
+        """Clone ``actions`` (k, n) at ``obs`` (k, d) too, in place of the oldest added steps
+        once ``capacity`` is full."""
+        if self._capacity == 0:
+            raise ValueError("this cloning term was built without room for added steps.")
+        rows = (self._added + np.arange(len(actions))) % self._capacity + self._fixed
+        index = torch.as_tensor(rows, device=self.obs.device)
+        self.obs[index] = torch.as_tensor(obs, dtype=self.obs.dtype, device=self.obs.device)
+        self.actions[index] = torch.as_tensor(actions, dtype=self.obs.dtype, device=self.obs.device)
+        self._added += len(actions)
 
     def loss(self) -> torch.Tensor:
         """The weighted cloning loss on one sampled batch of demonstrated steps."""

@@ -66,19 +66,23 @@ class TimeToGoPotential:
 
     def time(self, obs: Array) -> float:
         """T (s) at the joint angles and target of one observation."""
-        t = self.times(obs[TARGET])
         q = np.asarray(obs[JOINTS_FROM : JOINTS_FROM + self.n], dtype=np.float64)
+        return float(self.times_at(obs[TARGET], q[None, :])[0])
+
+    def times_at(self, target: Array, q: Array) -> Array:
+        """T (s) to ``target`` at each row of joint angles ``q`` (k, n), bilinear between cells."""
+        t = self.times(target)
         lo, frac = [], []
         for j, axis in enumerate(self.grid.axes):
-            x = np.clip((q[j] - axis[0]) / (axis[1] - axis[0]), 0.0, len(axis) - 1.0)
-            i = min(int(np.floor(x)), len(axis) - 2)
+            x = np.clip((q[:, j] - axis[0]) / (axis[1] - axis[0]), 0.0, len(axis) - 1.0)
+            i = np.minimum(np.floor(x).astype(np.int64), len(axis) - 2)
             lo.append(i)
             frac.append(x - i)
-        value = 0.0
+        value = np.zeros(q.shape[0])
         for corner in range(2**self.n):
             bits = [(corner >> j) & 1 for j in range(self.n)]
-            w = float(np.prod([f if b else 1.0 - f for f, b in zip(frac, bits, strict=True)]))
-            value += w * float(t[tuple(i + b for i, b in zip(lo, bits, strict=True))])
+            w = np.prod([f if b else 1.0 - f for f, b in zip(frac, bits, strict=True)], axis=0)
+            value += w * t[tuple(i + b for i, b in zip(lo, bits, strict=True))]
         return value
 
     def __call__(self, obs: Array) -> float:

@@ -276,6 +276,10 @@ def _agent_checks(cfg: DictConfig) -> None:
         raise fail(
             "agent.bc_weight", agent.bc_weight, "it must be 0 without agent.demonstrations to clone"
         )
+    if agent.bc_expert and agent.bc_weight == 0:
+        raise fail(
+            "agent.bc_expert", True, "it must be false with agent.bc_weight=0 (nothing clones)"
+        )
 
 
 def _need_whole_periods(key: str, value: float, dt: float) -> None:

@@ -185,6 +185,10 @@ class AgentConfig:
     bc_weight: float = checked(0.0, nonnegative())
     #: Clone only demonstrated actions the critic values above the actor's own (Q-filter).
     bc_q_filter: bool = False
+    #: Also clone the planner's action on every state the agent visits (DAgger; the planner's
+    #: least-time map kept ``expert_margin`` (m) from obstacles, `armexp.agents.expert`).
+    bc_expert: bool = False
+    expert_margin: float = checked(0.08, _pos)
     #: Training only: a collision is counted when the tip comes this close (m) to an obstacle,
     #: so the policy keeps clear of it; checks while training and `armexp eval` use Table I's.
     clearance: float = checked(0.0, nonnegative())

@@ -9,8 +9,10 @@ per episode, reward, length, success and collision with their rates over the las
 With ``agent.demonstrations`` the replay buffer starts with that many planner episodes
 (`armexp.agents.demonstrations`, ``demonstrations/*`` metrics; their time counts in the budget),
 and ``agent.bc_weight`` > 0 adds a behaviour-cloning term on them to the actor loss
-(`armexp.agents.cloning`, ``train/bc_loss``). ``agent.shaping`` > 0 trains on Table I's reward
-shaped by the planner's time to go (`armexp.agents.shaping`; logged episode rewards stay Table I's).
+(`armexp.agents.cloning`, ``train/bc_loss``); ``agent.bc_expert`` clones the planner's action
+on every state the agent visits too (`armexp.agents.expert`). ``agent.shaping`` > 0 trains on
+Table I's reward shaped by the planner's time to go (`armexp.agents.shaping`; logged episode
+rewards stay Table I's).
 ``agent.clearance`` > 0 trains with collisions counted that close to the obstacles (held-out
 checks use Table I's), and ``agent.lr_final`` decays the learning rate over the budget.
 With ``train.eval_every`` the policy is checked on held-out targets while training
@@ -53,6 +55,7 @@ from armexp.agents.callbacks import (
 )
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import demonstrations, fill_replay
+from armexp.agents.expert import ExpertLabels, TimeToGoExpert
 from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.shaping import ShapedRewards, TimeToGoPotential
 from armexp.agents.vec import make_vec_env
@@ -170,6 +173,7 @@ def _learn(
         }
 
     cloning = float(agent.bc_weight) > 0
+    labels: list[ExpertLabels] = []
     if int(agent.demonstrations) and (model_path is None or cloning):
         # Inside the wall-time budget: `stats` started its clock above. A resumed run plans the
         # same episodes again only for the cloning term; its replay buffer starts empty.
@@ -182,16 +186,20 @@ def _learn(
             shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
             fill_replay(model, shaped)
         if cloning:
-            DemonstrationCloning(
-                model, demos, float(agent.bc_weight), int(cfg.seed), bool(agent.bc_q_filter)
-            )
+            imitation = DemonstrationCloning(
+                model, demos, float(agent.bc_weight), int(cfg.seed), bool(agent.bc_q_filter),
+                capacity=int(agent.buffer_size) if agent.bc_expert else 0,
+            )  # fmt: skip
+            if agent.bc_expert:
+                expert = TimeToGoExpert(settings, float(agent.expert_margin))
+                labels = [ExpertLabels(expert, imitation)]
         reached = sum(d.reason == "reached" for d in demos) / len(demos)
         mlflow.log_metrics(
             {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
              "demonstrations/steps": sum(map(len, demos)), "demonstrations/wall_s": stats.wall()}
         )  # fmt: skip
     checkpoint = Checkpoint(int(tr.checkpoint_every), snapshot)
-    callbacks: list[Any] = [stats, budget, checkpoint]
+    callbacks: list[Any] = [stats, budget, checkpoint, *labels]
     heldout = None
     if tr.eval_every:
         probe = ReachEnv(true_settings)
