@@ -124,7 +124,7 @@ def test_the_q_filter_clones_only_where_the_critic_prefers_the_planner(
         action = model.actor(cloning.obs[index], deterministic=True)
     error = ((action - cloning.actions[index]) ** 2).mean(dim=1)
     kept = error * (torch.arange(batch) % 2 == 0)
-    assert float(loss) == pytest.approx(0.5 * 5.0 * float(kept.mean()), rel=1e-5)
+    assert float(loss.detach()) == pytest.approx(0.5 * 5.0 * float(kept.mean()), rel=1e-5)
     assert 0 < float(loss) < 0.5 * 5.0 * float(error.mean())
     # Demonstrations that are the actor's own actions: never better, so nothing is cloned.
     with torch.no_grad():

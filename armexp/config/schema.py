@@ -188,7 +188,9 @@ class AgentConfig:
     #: Also clone the planner's action on every state the agent visits (DAgger; the planner's
     #: least-time map kept ``expert_margin`` (m) from obstacles, `armexp.agents.expert`).
     bc_expert: bool = False
-    expert_margin: float = checked(0.08, _pos)
+    expert_margin: float = checked(0.10, _pos)
+    #: Environment steps the expert holds each candidate command for when comparing times to go.
+    expert_lookahead: int = checked(5, at_least(1))
     #: Training only: a collision is counted when the tip comes this close (m) to an obstacle,
     #: so the policy keeps clear of it; checks while training and `armexp eval` use Table I's.
     clearance: float = checked(0.0, nonnegative())

@@ -191,7 +191,9 @@ def _learn(
                 capacity=int(agent.buffer_size) if agent.bc_expert else 0,
             )  # fmt: skip
             if agent.bc_expert:
-                expert = TimeToGoExpert(settings, float(agent.expert_margin))
+                expert = TimeToGoExpert(
+                    settings, float(agent.expert_margin), int(agent.expert_lookahead)
+                )
                 labels = [ExpertLabels(expert, imitation)]
         reached = sum(d.reason == "reached" for d in demos) / len(demos)
         mlflow.log_metrics(
