@@ -21,7 +21,8 @@ filter lets the critic choose a side.
 
 With ``capacity`` > 0, D also holds up to that many further labelled steps (`add`, the newest
 replacing the oldest), such as the learner's own states labelled by the planner
-(`armexp.agents.expert`); the demonstrations stay.
+(`armexp.agents.expert`); the demonstrations stay. Like the replay buffer, added steps are not
+part of a checkpoint: a resumed run labels afresh.
 """
 
 from __future__ import annotations

@@ -60,9 +60,10 @@ class TimeToGoExpert:
         for row, o in enumerate(obs):
             q = o[JOINTS_FROM : JOINTS_FROM + n] + self._moves
             best = int(np.argmin(self.potential.times_at(o[TARGET], q)))
-            if best == 0:  # hold: T is 0 here or, between cells, at a local minimum of the
-                # interpolation a millimetre outside the reach threshold; the tip's distance
-                # to the target decides there
+            # To hold (commands[0], the only one of |c|₁ = 0) is right on the target, but T is
+            # also flat or at a local minimum of the interpolation a millimetre outside the
+            # reach threshold: the tip's distance to the target decides there.
+            if best == 0:
                 error = np.linalg.norm(tips(q, self._lengths) - o[TARGET], axis=1)
                 best = int(np.argmin(error))
             out[row] = self.commands[best]
