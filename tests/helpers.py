@@ -36,3 +36,19 @@ def stage_runs(store: Any, stage: str, newest_first: bool = True) -> list[Any]:
         f"tags.`armexp.stage` = '{stage}'",
         order_by=[f"attributes.start_time {order}"],
     )
+
+
+def small_sac(settings: Any, n_envs: int = 1, batch_size: int = 64) -> Any:
+    """`sac_quick`'s SAC on ``n_envs`` environments of ``settings``, with SB3's logger set up as
+    `learn` would (for tests that drive its updates or callbacks directly)."""
+    from stable_baselines3.common.logger import Logger
+
+    from armexp.agents.sac import build_sac
+    from armexp.agents.vec import make_vec_env
+    from armexp.config import compose_config
+
+    overrides = ["agent=sac_quick", f"agent.n_envs={n_envs}", f"agent.batch_size={batch_size}"]
+    agent = compose_config(overrides).agent
+    model = build_sac(agent, make_vec_env(settings, n_envs, "dummy", 0), 0, settings)
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model

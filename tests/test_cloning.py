@@ -5,15 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from stable_baselines3.common.logger import Logger
 
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import Demonstration, demonstrations
-from armexp.agents.sac import ResumableSAC, build_sac
-from armexp.agents.vec import make_vec_env
+from armexp.agents.sac import ResumableSAC
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
+from tests.helpers import small_sac
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +26,7 @@ def demos(env: ReachEnv) -> list[Demonstration]:
 
 
 def _model(env: ReachEnv) -> ResumableSAC:
-    agent = compose_config(["agent=sac_quick", "agent.n_envs=1", "agent.batch_size=64"]).agent
-    model = build_sac(agent, make_vec_env(env.settings, 1, "dummy", 0), 0, env.settings)
-    model.set_logger(Logger(folder=None, output_formats=[]))  # as `learn` would
+    model: ResumableSAC = small_sac(env.settings)
     return model
 
 

@@ -6,17 +6,15 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from stable_baselines3.common.logger import Logger
 
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import Demonstration, demonstrations
 from armexp.agents.expert import ExpertLabels, TimeToGoExpert
 from armexp.agents.rollout import rollout
-from armexp.agents.sac import build_sac
-from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
+from tests.helpers import small_sac
 
 
 @pytest.fixture(scope="module")
@@ -71,8 +69,7 @@ def test_the_expert_commands_full_speed_towards_the_target_and_holds_on_it(
 def test_added_steps_are_cloned_beside_the_demonstrations_and_replace_the_oldest(
     env: ReachEnv, demos: list[Demonstration]
 ) -> None:
-    agent = compose_config(["agent=sac_quick", "agent.n_envs=1", "agent.batch_size=64"]).agent
-    model = build_sac(agent, make_vec_env(env.settings, 1, "dummy", 0), 0, env.settings)
+    model = small_sac(env.settings)
     fixed = sum(len(d) for d in demos if d.reason == "reached")
     cloning = DemonstrationCloning(model, demos, 1.0, seed=0, capacity=5)
     demo_obs = cloning.obs[:fixed].clone()
@@ -91,9 +88,7 @@ def test_added_steps_are_cloned_beside_the_demonstrations_and_replace_the_oldest
 def test_training_labels_every_visited_state_with_the_experts_action(
     env: ReachEnv, expert: TimeToGoExpert, demos: list[Demonstration]
 ) -> None:
-    agent = compose_config(["agent=sac_quick", "agent.n_envs=2", "agent.batch_size=32"]).agent
-    model = build_sac(agent, make_vec_env(env.settings, 2, "dummy", 0), 0, env.settings)
-    model.set_logger(Logger(folder=None, output_formats=[]))
+    model = small_sac(env.settings, n_envs=2, batch_size=32)
     fixed = sum(len(d) for d in demos if d.reason == "reached")
     cloning = DemonstrationCloning(model, demos, 1.0, seed=0, capacity=1000)
     model.learn(total_timesteps=40, callback=ExpertLabels(expert, cloning))

@@ -81,7 +81,9 @@ class DemonstrationCloning:
         rows = (self._added + np.arange(len(actions))) % self._capacity + self._fixed
         index = torch.as_tensor(rows, device=self.obs.device)
         self.obs[index] = torch.as_tensor(obs, dtype=self.obs.dtype, device=self.obs.device)
-        self.actions[index] = torch.as_tensor(actions, dtype=self.obs.dtype, device=self.obs.device)
+        self.actions[index] = torch.as_tensor(
+            actions, dtype=self.actions.dtype, device=self.actions.device
+        )
         self._added += len(actions)
 
     def loss(self) -> torch.Tensor:
