@@ -13,6 +13,7 @@ from armexp.agents.expert import ExpertLabels, TimeToGoExpert
 from armexp.agents.rollout import rollout
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
+from armexp.envs.geometry import segment_hits, tips
 from armexp.envs.reach import ReachEnv
 from tests.helpers import small_sac
 
@@ -57,13 +58,50 @@ def test_the_expert_commands_full_speed_towards_the_target_and_holds_on_it(
     action = expert(obs)
     assert action.shape == (1, 2) and set(np.abs(action).ravel()) <= {0.0, 1.0}
     assert np.abs(action).sum() > 0  # the arm starts away from every target
-    # With the tip on the target there is nowhere shorter to go: hold still.
+    # With the tip on the target there is nowhere to go: hold still (up to the workspace
+    # table's float32 rounding of the target).
     config = env.workspace.configs[0]
     on_target = obs.copy()
     on_target[6:8] = config
-    np.testing.assert_array_equal(expert(on_target), [[0.0, 0.0]])
+    np.testing.assert_allclose(expert(on_target), [[0.0, 0.0]], atol=1e-3)
     # Batched rows are labelled one by one.
-    np.testing.assert_array_equal(expert(np.stack([obs, on_target])), [action[0], [0.0, 0.0]])
+    np.testing.assert_array_equal(expert(np.stack([obs, on_target])), [action[0], expert(on_target)[0]])
+
+
+def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_are_smooth(
+    env: ReachEnv, expert: TimeToGoExpert
+) -> None:
+    lengths = np.asarray(env.settings.plant.arm.lengths_array)
+    step = np.asarray(env.settings.velocity_bound) * env.settings.action_period
+    rng = np.random.default_rng(3)
+    checked = 0
+    for config in env.workspace.configs[rng.choice(len(env.workspace.configs), 200)]:
+        target = tips(config, lengths)
+        q = config + rng.normal(0.0, 0.05, 2)
+        error = target - tips(q, lengths)
+        distance = float(np.linalg.norm(error))
+        if not 0.01 < distance < expert.approach or segment_hits(
+            tips(q, lengths), target, env.settings.obstacles + [0, 0, env.settings.path_margin]
+        ):
+            continue
+        obs = np.zeros(env.observation_space.shape)
+        obs[:2], obs[6:8] = target, q
+        action = expert(obs)[0]
+        moved = tips(q + action * step, lengths) - tips(q, lengths)
+        # One step of the label moves the tip towards the target, along the line to it, with
+        # its fastest joint at the bound (the greedy labels are bang-bang and flip sign here).
+        assert np.dot(moved, error) / (np.linalg.norm(moved) * distance) > 0.99
+        assert np.abs(action).max() == pytest.approx(1.0)
+        # A tenth of a milliradian changes the label by a little, not a sign.
+        nudged = obs.copy()
+        nudged[6:8] += 1e-4
+        assert np.abs(expert(nudged)[0] - action).max() < 0.05
+        checked += 1
+    assert checked >= 50
+    # Beyond the approach radius the greedy least-time labels are back.
+    far = TimeToGoExpert(env.settings, 0.10, approach=0.0)
+    obs, _ = env.reset(seed=0, options={"target": env.workspace.points[0]})
+    np.testing.assert_array_equal(far(obs), expert(obs))
 
 
 def test_added_steps_are_cloned_beside_the_demonstrations_and_replace_the_oldest(
