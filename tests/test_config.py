@@ -101,6 +101,7 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.bc_expert=true"], ["agent.bc_expert=True", "agent.bc_weight=0"]),
         (["agent.expert_margin=0"], ["agent.expert_margin=0", "> 0"]),
         (["agent.lr_final=-0.001"], ["agent.lr_final=-0.001", "> 0, or null"]),
+        (["agent.average_tail=1.5"], ["agent.average_tail=1.5", "[0.0, 1.0]"]),
         (["train.keep_best=true"], ["train.keep_best=True", "train.eval_every=0"]),
     ],
 )

@@ -65,7 +65,8 @@ def test_the_expert_commands_full_speed_towards_the_target_and_holds_on_it(
     on_target[6:8] = config
     np.testing.assert_allclose(expert(on_target), [[0.0, 0.0]], atol=1e-3)
     # Batched rows are labelled one by one.
-    np.testing.assert_array_equal(expert(np.stack([obs, on_target])), [action[0], expert(on_target)[0]])
+    both = expert(np.stack([obs, on_target]))
+    np.testing.assert_array_equal(both, [action[0], expert(on_target)[0]])
 
 
 def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_are_smooth(
@@ -73,6 +74,7 @@ def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_
 ) -> None:
     lengths = np.asarray(env.settings.plant.arm.lengths_array)
     step = np.asarray(env.settings.velocity_bound) * env.settings.action_period
+    grown = env.settings.obstacles + np.array([0.0, 0.0, env.settings.path_margin])
     rng = np.random.default_rng(3)
     checked = 0
     for config in env.workspace.configs[rng.choice(len(env.workspace.configs), 200)]:
@@ -80,9 +82,7 @@ def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_
         q = config + rng.normal(0.0, 0.05, 2)
         error = target - tips(q, lengths)
         distance = float(np.linalg.norm(error))
-        if not 0.01 < distance < expert.approach or segment_hits(
-            tips(q, lengths), target, env.settings.obstacles + [0, 0, env.settings.path_margin]
-        ):
+        if not 0.01 < distance < expert.approach or segment_hits(tips(q, lengths), target, grown):
             continue
         obs = np.zeros(env.observation_space.shape)
         obs[:2], obs[6:8] = target, q

@@ -169,6 +169,9 @@ class AgentConfig:
     #: Learning rate at the end of the budget, reached linearly from ``learning_rate`` over
     #: whichever budget (episodes, steps or minutes) runs out first (None: constant).
     lr_final: float | None = checked(None, or_null(_pos))
+    #: Share of the budget, at its end, over which the actor's weights are averaged into the
+    #: final model (`armexp.agents.averaging`; 0: the last weights).
+    average_tail: float = checked(0.0, between(0.0, 1.0))
     episodes: int = checked(20000, at_least(1))
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))

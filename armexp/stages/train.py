@@ -14,7 +14,10 @@ on every state the agent visits too (`armexp.agents.expert`). ``agent.shaping`` 
 Table I's reward shaped by the planner's time to go (`armexp.agents.shaping`; logged episode
 rewards stay Table I's).
 ``agent.clearance`` > 0 trains with collisions counted that close to the obstacles (held-out
-checks use Table I's), and ``agent.lr_final`` decays the learning rate over the budget.
+checks use Table I's), ``agent.lr_final`` decays the learning rate over the budget, and
+``agent.average_tail`` makes the final actor the average of its weights over the end of the
+budget (`armexp.agents.averaging`; ``final/averaged_actors``; the checkpoint keeps the last
+weights, and a resumed run averages from where it resumes).
 With ``train.eval_every`` the policy is checked on held-out targets while training
 (``eval/*``); ``train.keep_best`` makes the best check the final model.
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
@@ -40,6 +43,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
 from armexp import tracking
+from armexp.agents.averaging import ActorAverage
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
     MODEL_DIR,
@@ -163,7 +167,11 @@ def _learn(
     budget = Budget(
         stats, int(agent.episodes), total, None if minutes is None else float(minutes) * 60.0
     )
-    model.budget_used = lambda: budget.used(model.num_timesteps)
+
+    def used() -> float:
+        return budget.used(model.num_timesteps)
+
+    model.budget_used = used
 
     def snapshot() -> dict[str, Any]:
         return {
@@ -214,6 +222,10 @@ def _learn(
             # The closing check counts in the budget too: keep the last one's time for it.
             budget.reserve = lambda: heldout.last_seconds
         callbacks.append(heldout)
+    averager = None
+    if float(agent.average_tail) > 0:
+        averager = ActorAverage(float(agent.average_tail), used)
+        callbacks.append(averager)
     if tr.progress:
         callbacks.append(Progress(total, stats, initial=done_steps))
     started = time.perf_counter()
@@ -235,9 +247,12 @@ def _learn(
     stats.flush()
     checkpoint.save()
     kept: dict[str, float] = {}
+    if averager is not None:
+        kept["final/averaged_actors"] = float(averager.apply())
     if heldout is not None and heldout.keep_best:
-        if not heldout.history or heldout.history[-1]["step"] != model.num_timesteps:
-            heldout.evaluate()  # the policy as trained competes too
+        last = heldout.history[-1]["step"] if heldout.history else None
+        if averager is not None or last != model.num_timesteps:
+            heldout.evaluate()  # the policy as trained (or averaged) competes too
         best = heldout.restore_best()
         kept = {"final/kept_step": best["step"], "final/kept_success": best["eval/success_rate"]}
     log_model(model, MODEL_DIR, snapshot())
