@@ -51,6 +51,25 @@ def test_filled_times_are_finite_and_grow_one_cell_at_a_time() -> None:
     assert np.isfinite(filled).all() and filled[0, 0] == 0.0 and filled[5, 4] == 1.0
     assert filled[2, 1] == 1.0  # two Chebyshev moves from (0, 0)
     assert filled[4, 4] == 1.5  # one move from (5, 4) beats four from (0, 0)
+    # A finite time is never shortened by a path through filled cells, and a filled cell gets
+    # its least time even where a dearer finite cell is nearer.
+    line = fill_unreached(np.array([[0.0, np.inf, np.inf, np.inf, np.inf, np.inf, 9.0]]), 0.5)
+    np.testing.assert_array_equal(line, [[0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 9.0]])
+
+
+def test_a_dearer_inside_makes_the_time_grow_faster_with_depth_into_the_margin(
+    settings: ReachSettings,
+) -> None:
+    cheap_potential = TimeToGoPotential(settings, 1.0)
+    target = ReachEnv(settings).workspace.points[0]
+    cheap = cheap_potential.times(target)
+    dear = TimeToGoPotential(settings, 1.0, inside_cost=10.0).times(target)
+    grid = cheap_potential.grid
+    free = np.isfinite(time_to_go(grid, target, settings.reach_threshold))
+    assert (~free).any()
+    np.testing.assert_array_equal(dear[free], cheap[free])
+    # A filled cell d ≥ 1 moves from free cell f: dear = T_f + 10·d·dt ≥ cheap + 9·d·dt.
+    assert np.all(dear[~free] - cheap[~free] >= 9 * grid.dt - 1e-9)
 
 
 def _shaped_episode(

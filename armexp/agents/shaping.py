@@ -44,8 +44,13 @@ class TimeToGoPotential:
     Time-to-go maps are kept for the ``cache`` most recent targets (one search is ~15 ms).
     """
 
-    def __init__(self, settings: ReachSettings, scale: float, cache: int = 64) -> None:
+    def __init__(
+        self, settings: ReachSettings, scale: float, cache: int = 64, inside_cost: float = 1.0
+    ) -> None:
+        """``inside_cost``: the time of one grid move among cells with no finite time, in
+        free moves (1: such cells cost what free ones do)."""
         self.scale = float(scale)
+        self.inside_cost = float(inside_cost)
         self.threshold = settings.reach_threshold
         self.n = int(settings.q0.shape[0])
         self.grid: JointGrid = settings.joint_grid()
@@ -58,7 +63,7 @@ class TimeToGoPotential:
             self._maps.move_to_end(key)
             return self._maps[key]
         t = time_to_go(self.grid, np.asarray(target, dtype=np.float64), self.threshold)
-        t = fill_unreached(t, self.grid.dt)
+        t = fill_unreached(t, self.grid.dt * self.inside_cost)
         self._maps[key] = t
         if len(self._maps) > self._cache:
             self._maps.popitem(last=False)

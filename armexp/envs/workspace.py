@@ -102,20 +102,24 @@ def _moves(n: int) -> np.ndarray:
 
 
 def fill_unreached(times: Array, dt: float) -> Array:
-    """``times`` with every inf replaced by the least neighbour time plus ``dt``, repeatedly
-    (all zeros when nothing is finite)."""
+    """``times`` with every inf replaced by the least time over paths of grid moves through
+    such cells to a finite cell, ``dt`` per move (all zeros when nothing is finite). Finite
+    times are kept: a path through the filled cells never shortens them."""
     if not np.isfinite(times).any():
         return np.zeros_like(times)
+    unreached = ~np.isfinite(times)
     t = times.copy()
     moves = _moves(t.ndim)
-    while not np.isfinite(t).all():
+    while True:
         padded = np.pad(t, 1, constant_values=np.inf)
         best = t.copy()
         for move in moves:
             window = tuple(slice(1 + m, 1 + m + k) for m, k in zip(move, t.shape, strict=True))
             best = np.minimum(best, padded[window] + dt)
+        best = np.where(unreached, best, times)
+        if np.array_equal(best, t):
+            return t
         t = best
-    return t
 
 
 def breadth_first_times(free: np.ndarray, start: np.ndarray, dt: float, layers: int) -> Array:
