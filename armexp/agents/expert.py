@@ -13,16 +13,18 @@ that brings the tip closest to the target. Within ``approach`` of the target, wh
 line to it is clear, the action instead moves the tip straight at the target at the largest
 speed the bounds allow (a damped least-squares step through the arm's Jacobian).
 
-The map keeps the tip ``margin`` from every obstacle. Measured on held-out targets with
-``paper_five`` (two-link arm, the paper's gains): at the environment's 2 cm path margin and a
-one-step look-ahead this greedy expert reaches 77 of 100 (23 collide: descending T hugs the
-margin, and the tracking lag carries the tip over it); at 8 cm and three steps 290 of 300 (10
-collide); at 10 cm and five steps (the defaults of ``agent.expert_margin`` and
-``agent.expert_lookahead``) 296 of 300 (3 collide, 1 times out); at 12 cm 291. Without the
-hold rule, 1-3 % stalled a millimetre outside the reach threshold. On the three-link
-arm's coarser grid (34 cells per joint): 19 of 20. These were measured before the straight
-approach below; with it, at 10 cm and five steps: 297 of 300 (3 collide) and all four paper
-tasks.
+The map keeps the tip ``margin`` from every obstacle, and inside that margin each grid move
+costs ``inside_cost`` free ones, so that where the tracking lag has carried the tip in, the
+quickest way on leads out first. At one free move per cell the map led on through the margin
+and the obstacle behind it, and the learner cloned that: at the preset's seed 3 its tip slid 3
+cm from the obstacle at (0.50, 1.30) on task (a), and the expert's label there was to carry on.
+Measured on 300 held-out targets with ``paper_five`` (two-link arm, the paper's gains): at 10
+cm and five steps (the defaults of ``agent.expert_margin`` and ``agent.expert_lookahead``)
+300 reached and all four paper tasks, 295 (5 collide) at one free move per cell; at the
+environment's 2 cm path margin and one step 300 reached, 248 (52 collide) at one free move
+per cell; at 5 cm and five steps 300. On the three-link arm's coarser grid (34 cells per
+joint): 19 of 20 (one times out). Without the hold rule, 1-3 % stalled a millimetre outside
+the reach threshold.
 
 Why the straight approach: a 128x128 actor regresses the labels, and near the target the greedy
 labels flip sign over a few hundredths of a radian (a five-step move overshoots the 4 cm goal
@@ -62,7 +64,7 @@ class TimeToGoExpert:
         inside_cost: float = 10.0,
     ) -> None:
         """``approach`` defaults to twice the reach threshold; 0 turns the straight approach
-        off."""
+        off. ``inside_cost``: free moves per grid move inside the margin."""
         self.approach = 2 * settings.reach_threshold if approach is None else approach
         self._step = np.asarray(settings.velocity_bound, dtype=np.float64) * settings.action_period
         grown = np.asarray(settings.obstacles, dtype=np.float64).reshape(-1, 3).copy()
