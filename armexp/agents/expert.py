@@ -47,6 +47,7 @@ from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.shaping import JOINTS_FROM, TARGET, TimeToGoPotential
 from armexp.envs.geometry import segment_hits, tips
 from armexp.envs.reach import ReachSettings
+from armexp.sim.dynamics import tip_jacobian
 from armexp.sim.model import Array
 
 
@@ -76,8 +77,7 @@ class TimeToGoExpert:
         n = self.potential.n
         commands = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=n)))
         self.commands = commands[np.argsort(np.abs(commands).sum(axis=1), kind="stable")]
-        bound = np.asarray(settings.velocity_bound, dtype=np.float64)
-        self._moves = self.commands * bound * settings.action_period * lookahead
+        self._moves = self.commands * self._step * lookahead
         self._lengths = np.asarray(settings.plant.arm.lengths_array, dtype=np.float64)
 
     def __call__(self, obs: Array) -> np.ndarray:
@@ -110,11 +110,8 @@ class TimeToGoExpert:
         error = target - tip
         if not np.linalg.norm(error) < self.approach or segment_hits(tip, target, self._grown):
             return None
-        th = np.cumsum(q)
-        # Column j: the tip's velocity per unit rate of joint j (all links beyond it turn).
-        reach = np.cumsum((self._lengths * np.stack([np.cos(th), np.sin(th)]))[:, ::-1], axis=1)
         # In command units, so that a redundant arm (three links) moves its faster joints more.
-        per_command = np.stack([-reach[1], reach[0]])[:, ::-1] * self._step
+        per_command = tip_jacobian(q, self._lengths) * self._step
         gram = per_command @ per_command.T
         damping = 1e-3 * np.trace(gram) * np.eye(2)  # bounded near the stretched-arm singularity
         command = per_command.T @ np.linalg.solve(gram + damping, error)
