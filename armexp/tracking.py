@@ -214,18 +214,31 @@ def stage_run(
             mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
         yield run
     except KeyboardInterrupt:
-        mlflow.set_tag(ERROR_TAG, "interrupted")
-        mlflow.end_run(status="KILLED")
+        retry(lambda: mlflow.set_tag(ERROR_TAG, "interrupted"))
+        _end_run(run.info.run_id, "KILLED")
         raise
     except BaseException as exc:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
-            mlflow.end_run(status="FINISHED")
+            _end_run(run.info.run_id, "FINISHED")
             raise
-        mlflow.set_tag(ERROR_TAG, f"{type(exc).__name__}: {exc}"[:5000])
-        mlflow.end_run(status="FAILED")
+        message = f"{type(exc).__name__}: {exc}"[:5000]
+        retry(lambda: mlflow.set_tag(ERROR_TAG, message))
+        _end_run(run.info.run_id, "FAILED")
         raise
     else:
-        mlflow.end_run(status="FINISHED")
+        _end_run(run.info.run_id, "FINISHED")
+
+
+def _end_run(run_id: str, status: str) -> None:
+    """`mlflow.end_run`, with the status write retried on a SQLite lock (a reader such as the
+    MLflow UI, or another job, holding the store): end_run pops the active run before it writes,
+    so a failed write is repeated through the client instead of calling end_run again."""
+    try:
+        mlflow.end_run(status=status)
+    except Exception as exc:
+        if "locked" not in str(exc).lower():
+            raise
+        retry(lambda: MlflowClient().set_terminated(run_id, status))
 
 
 def log_dataframe(df: Any, name: str, folder: str | None = None) -> None:

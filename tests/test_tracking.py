@@ -58,6 +58,34 @@ def test_interrupted_stage_is_killed(compose: Callable[..., DictConfig]) -> None
     assert run.info.status == "KILLED" and run.data.metrics["partial"] == 2.0
 
 
+@pytest.mark.parametrize("outcome", ["FINISHED", "KILLED"])
+def test_a_locked_store_does_not_lose_the_final_status(
+    compose: Callable[..., DictConfig], monkeypatch: pytest.MonkeyPatch, outcome: str
+) -> None:
+    # A reader (the MLflow UI, a poll) holding the SQLite store when the run ends: the first
+    # status write fails with a lock, as it did for an interrupted train run in a fresh clone.
+    cfg = compose()
+    real = MlflowClient.set_terminated
+    calls: list[str] = []
+
+    def locked_once(self: MlflowClient, run_id: str, status: str | None = None) -> None:
+        calls.append(str(status))
+        if len(calls) == 1:
+            raise mlflow.exceptions.MlflowException("(sqlite3.OperationalError) database is locked")
+        real(self, run_id, status)
+
+    monkeypatch.setattr(MlflowClient, "set_terminated", locked_once)
+    if outcome == "KILLED":
+        with pytest.raises(KeyboardInterrupt), tracking.stage_run(cfg, "tune"):
+            raise KeyboardInterrupt
+    else:
+        with tracking.stage_run(cfg, "simulate"):
+            mlflow.log_metric("partial", 3.0)
+    assert calls == [outcome, outcome]
+    assert _only_run(cfg).info.status == outcome
+    assert mlflow.active_run() is None
+
+
 def test_lookup_errors_name_the_key(compose: Callable[..., DictConfig]) -> None:
     cfg = compose()
     with pytest.raises(ConfigError, match=r"no FINISHED tune run with controller\.name="):
