@@ -77,13 +77,19 @@ def artifact_root(cfg: DictConfig) -> str | None:
     return (Path(cfg.tracking.runs_dir).resolve() / "artifacts").as_uri()
 
 
+def is_lock(exc: BaseException) -> bool:
+    """Whether ``exc`` is SQLite reporting a locked store (MLflow wraps sqlite3/SQLAlchemy
+    errors in several types, so the message decides)."""
+    return "locked" in str(exc).lower()
+
+
 def retry(fn: Callable[[], T], attempts: int = 8, delay: float = 0.25) -> T:
     """Call ``fn`` again when SQLite reports a lock (several jobs writing one store)."""
     for i in range(attempts):
         try:
             return fn()
-        except Exception as exc:  # MLflow wraps sqlite3/SQLAlchemy errors in several types
-            if "locked" not in str(exc).lower() or i == attempts - 1:
+        except Exception as exc:
+            if not is_lock(exc) or i == attempts - 1:
                 raise
             time.sleep(delay * (2**i))
     raise AssertionError("unreachable")
@@ -236,7 +242,7 @@ def _end_run(run_id: str, status: str) -> None:
     try:
         mlflow.end_run(status=status)
     except Exception as exc:
-        if "locked" not in str(exc).lower():
+        if not is_lock(exc):
             raise
         retry(lambda: MlflowClient().set_terminated(run_id, status))
 

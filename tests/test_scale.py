@@ -164,13 +164,8 @@ AT_A_TERMINAL = (
 )
 
 
-@pytest.mark.parametrize(
-    "sig",
-    [
-        pytest.param(signal.SIGINT, id="SIGINT", marks=pytest.mark.slow),
-        pytest.param(signal.SIGTERM, id="SIGTERM", marks=pytest.mark.slow),
-    ],
-)
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_during_train_leaves_killed_run_with_checkpoint_and_resume_finishes(
     tmp_path: Path, sig: signal.Signals
 ) -> None:
