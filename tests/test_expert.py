@@ -108,14 +108,15 @@ def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_
 
 
 def test_inside_its_margin_the_expert_backs_away_from_the_obstacle(env: ReachEnv) -> None:
-    # A state the learner reached on task (a): the tip 3 cm from the obstacle at (0.50, 1.30),
-    # deep inside the expert's 10 cm margin. Filled cells that cost what free ones do make
-    # the straight line through the obstacle look as short as any other (the learner's
-    # collision); costing ten free moves a cell, the way out comes first.
+    # A state the learner reached on task (a) (then at (0.15, 1.55), behind the obstacle at
+    # (0.50, 1.30)): the tip 3 cm from that obstacle, deep inside the expert's 10 cm margin.
+    # Filled cells that cost what free ones do make the straight line through the obstacle
+    # look as short as any other (the learner's collision); costing ten free moves a cell,
+    # the way out comes first.
     lengths = np.asarray(env.settings.plant.arm.lengths_array)
     obstacle = np.array([0.50, 1.30, 0.12])
     obs = np.zeros(env.observation_space.shape)
-    obs[:2], obs[6:8] = env.settings.tasks["a"], [0.46, 1.47]
+    obs[:2], obs[6:8] = [0.15, 1.55], [0.46, 1.47]
 
     def clearance_after(expert: TimeToGoExpert) -> float:
         q = obs[6:8] + expert(obs)[0] * np.asarray(env.settings.velocity_bound) * 0.03 * 5
