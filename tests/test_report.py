@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -121,3 +122,285 @@ def test_selection_without_eval_runs_is_one_sentence(
     assert rc == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "no FINISHED eval run" in err
+
+
+# ------------------------------------------------- stores logged by hand: what tables must say
+def _episode(
+    controller: str,
+    task: str,
+    reached: bool = True,
+    tracking: float = 1.0,
+    error: float = 2.0,
+    convergence: float = 0.02,
+) -> dict[str, object]:
+    return {
+        "controller": controller,
+        "task": task,
+        "reason": "reached" if reached else "truncated",
+        "target_x": 1.0,
+        "target_y": 0.5,
+        "success": float(reached),
+        "collision": 0.0,
+        "target_time": 5.0 if reached else math.nan,
+        "final_error_cm": error,
+        "rms_e1": 0.001,
+        "tip_rms_cm": tracking,
+        "max_abs_tau_1": 312.0,
+        "max_abs_tau_2": 145.0,
+        "time_at_limit": 0.25,
+        "convergence_time": convergence,
+        "steps": 100.0,
+        "return": -10.0,
+        "duration": 3.0,
+    }
+
+
+#: (a) both reach, the proposed controller's convergence is 0 (a ratio against zero);
+#: (b) PID does not reach; (c) the proposed never settles and PID's target error is 0;
+#: (d) convergence comes from the eval run's metrics (0.015 and inf), not episodes.csv.
+HAND_EPISODES = [
+    _episode("adaptive", "a", tracking=0.8, error=2.0, convergence=0.0),
+    _episode("pid", "a", tracking=1.0, error=2.5, convergence=0.019),
+    _episode("adaptive", "b", convergence=0.012),
+    _episode("pid", "b", reached=False, convergence=0.03),
+    _episode("adaptive", "c", convergence=math.inf),
+    _episode("pid", "c", error=0.0, convergence=0.03),
+    _episode("adaptive", "d", convergence=0.5),
+    _episode("pid", "d", convergence=0.02),
+    _episode("adaptive", "random_000"),
+    _episode("pid", "random_000", reached=False),
+]
+
+
+def _log_run(
+    experiment_id: str,
+    stage: str,
+    params: dict[str, str],
+    tags: dict[str, str] | None = None,
+    metrics: dict[str, float] | None = None,
+    texts: dict[str, str] | None = None,
+) -> str:
+    import mlflow
+
+    with mlflow.start_run(
+        experiment_id=experiment_id, tags={"armexp.stage": stage, **(tags or {})}
+    ) as run:
+        items = sorted(params.items())
+        for i in range(0, len(items), 100):
+            mlflow.log_params(dict(items[i : i + 100]))
+        if metrics:
+            mlflow.log_metrics(metrics)
+        for name, text in (texts or {}).items():
+            mlflow.log_text(text, name)
+        return str(run.info.run_id)
+
+
+def _hand_store(runs: Path, agent: str) -> tuple[str, str]:
+    """A train run of preset ``agent`` and an eval run of its policy, logged through MLflow as
+    the stages log them (no stage runs): returns (train run id, eval run id)."""
+    from omegaconf import OmegaConf
+
+    from armexp import tracking
+    from armexp.config import compose_config
+
+    train_cfg = compose_config([f"agent={agent}", f"tracking.runs_dir={runs}"])
+    experiment_id = tracking.setup(train_cfg)
+    train_id = _log_run(
+        experiment_id,
+        "train",
+        tracking.flatten(train_cfg),
+        tags={"armexp.stop_reason": "time"},
+        metrics={
+            "final/env_steps": 123456.0,
+            "final/episodes": 789.0,
+            "final/wall_s": 1230.0,
+            "demonstrations/steps": 45678.0,
+        },
+        texts={"config.yaml": OmegaConf.to_yaml(train_cfg, resolve=True)},
+    )
+    # The eval run's own config composes the default agent (sac_paper): the report must name
+    # the policy's preset from the train run, not this.
+    eval_params = tracking.flatten(compose_config([f"tracking.runs_dir={runs}"]))
+    eval_params.update({"eval.initial_offset": "0.05", "robot.torque_limit": "[400.0, 300.0]"})
+    episodes = pd.DataFrame(HAND_EPISODES).to_csv(index=False)
+    eval_id = _log_run(
+        experiment_id,
+        "eval",
+        eval_params,
+        tags={"armexp.train_run": train_id},
+        metrics={"adaptive.d.convergence_time": 0.015, "pid.d.convergence_time": math.inf},
+        texts={"episodes.csv": episodes},
+    )
+    return train_id, eval_id
+
+
+@pytest.fixture(scope="module")
+def hand_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Reports of two hand-logged stores: an aided preset (sac_quick) and the plain one."""
+    out = {}
+    for agent in ("sac_quick", "sac_paper"):
+        runs = tmp_path_factory.mktemp(agent) / "runs"
+        _, eval_id = _hand_store(runs, agent)
+        folder = runs.parent / "report"
+        rc = main(
+            [
+                "report",
+                f"tracking.runs_dir={runs}",
+                f"report.out_dir={folder}",
+                f"report.eval_runs=[{eval_id}]",
+            ]
+        )
+        assert rc == 0
+        out[agent] = folder
+    return out
+
+
+def _text(folder: Path, name: str, ext: str) -> str:
+    return (folder / "tables" / f"{name}.{ext}").read_text()
+
+
+def _row(markdown: str, start: str) -> list[str]:
+    (line,) = [line for line in markdown.splitlines() if line.startswith(start)]
+    return [cell.strip() for cell in line.strip("|").split(" | ")]
+
+
+def test_table_two_names_the_preset_its_aids_and_the_budget_spent(
+    hand_reports: dict[str, Path],
+) -> None:
+    md = _text(hand_reports["sac_quick"], "table2_agent", "md")
+    assert _row(md, "| Preset |")[1] == "sac_quick"
+    aids = _row(md, "| Learning aids |")[1]
+    for aid in ("1000 planner demonstrations", "behaviour cloning", "DAgger", "averaged"):
+        assert aid in aids, aid
+    assert _row(md, "| Aided |")[1].startswith("yes: demonstrations, behaviour cloning")
+    assert "≤ 20 min wall time" in _row(md, "| Training budget |")[1]
+    assert _row(md, "| Env steps used |")[1] == "123,456 (+ 45,678 in planner demonstrations)"
+    assert _row(md, "| Episodes used |")[1] == "789"
+    assert _row(md, "| Wall time used (min) |")[1] == "20.5"
+    assert _row(md, "| Stopped on |")[1] == "time"
+    assert _row(md, "| Batch size |")[1:] == ["256", "512"]  # as used, beside the paper's
+    csv = pd.read_csv(hand_reports["sac_quick"] / "tables" / "table2_agent.csv")
+    assert csv.set_index("Parameter").loc["Preset", "Value"] == "sac_quick"
+    plain = _text(hand_reports["sac_paper"], "table2_agent", "md")
+    assert _row(plain, "| Preset |")[1] == "sac_paper"
+    assert _row(plain, "| Learning aids |")[1] == "none"
+    assert _row(plain, "| Aided |")[1] == "no"
+
+
+def test_table_three_and_the_pid_comparison_say_when_the_agent_is_aided(
+    hand_reports: dict[str, Path],
+) -> None:
+    aided = "sac_quick (aided: demonstrations, behaviour cloning, DAgger expert"
+    for agent, says in (("sac_quick", aided), ("sac_paper", "sac_paper (plain SAC")):
+        folder = hand_reports[agent]
+        for name in ("table3_performance", "comparison_pid"):
+            md = _text(folder, name, "md")
+            caption = md.splitlines()[2]
+            assert caption.startswith("*Agent: ") and says in caption, (agent, name, caption)
+            assert ("aided:" in caption) == (agent == "sac_quick")
+            assert ("not the paper's plain SAC" in caption) == (agent == "sac_quick")
+            tex = _text(folder, name, "tex")
+            assert says.replace("_", r"\_") in tex.split(r"\caption{")[1].split("\n")[0]
+            csv = pd.read_csv(folder / "tables" / f"{name}.csv")
+            ours = csv[csv.agent.notna()]
+            assert len(ours) and (ours.aided == (agent == "sac_quick")).all()
+            assert ours.agent.str.startswith(agent).all()
+        plain_missing = "The paper's plain SAC is not among the selected runs"
+        assert (plain_missing in _text(folder, "table3_performance", "md")) == (
+            agent == "sac_quick"
+        )
+        index = (folder / "index.html").read_text()
+        assert index.count(says) >= 3  # page header, Table III, comparison
+        runs = pd.read_csv(folder / "runs.csv")
+        assert set(runs.agent) == {agent}  # eval runs named by their policy's preset
+
+
+def test_the_papers_target_error_keeps_its_printed_units_with_a_note(
+    hand_reports: dict[str, Path],
+) -> None:
+    folder = hand_reports["sac_quick"]
+    md = _text(folder, "table3_performance", "md")
+    assert _row(md, "| (a) | paper |")[4] == "0.025 cm†"
+    note = "labelled cm, but 0.025–0.039 cm"
+    assert note in md and "read as metres (2.5–3.9 cm)" in md
+    assert "labelled cm, but 0.025--0.039 cm" in _text(folder, "table3_performance", "tex")
+    assert note in (folder / "index.html").read_text()
+
+
+def test_a_ratio_against_zero_or_an_unreached_task_is_a_dash(
+    hand_reports: dict[str, Path],
+) -> None:
+    md = _text(hand_reports["sac_quick"], "comparison_pid", "md")
+    header = _row(md, "| Task |")
+    a, b, c = (dict(zip(header, _row(md, f"| ({t}) |"), strict=True)) for t in "abc")
+    assert a["convergence: proposed / PID"] == "0.000 / 0.019"
+    assert a["convergence improvement"] == "–"  # not +100 %
+    assert a["tracking improvement"] == "+20.0 %" and a["target error improvement"] == "+20.0 %"
+    assert all(b[f"{k} improvement"] == "–" for k in ("convergence", "tracking", "target time"))
+    assert c["target error improvement"] == "–" and c["convergence improvement"] == "–"
+    assert c["tracking improvement"] == "+0.0 %"
+    pooled = dict(zip(header, _row(md, "| tasks both reached: (a), (c), (d) |"), strict=True))
+    assert pooled["tracking improvement"] == "+6.7 %"
+    # PID's zero target error in (c) and the never-settled (c) and (d) void the pooled ratios.
+    assert pooled["target error improvement"] == "–" and pooled["convergence improvement"] == "–"
+    for bad in ("100.0 %", "inf", "nan"):
+        assert bad not in md.lower(), bad
+    csv = pd.read_csv(hand_reports["sac_quick"] / "tables" / "comparison_pid.csv")
+    assert csv.set_index("task").loc["(a)", "convergence_time_improvement_pct"] != 100.0
+
+
+def test_convergence_prints_finite_times_and_a_dash_when_never_settled(
+    hand_reports: dict[str, Path],
+) -> None:
+    md = _text(hand_reports["sac_quick"], "table3_performance", "md")
+    header = _row(md, "| Task |")
+    column = header.index("Convergence (s)‡")
+    assert _row(md, "| (b) | proposed |")[column] == "0.012"
+    assert _row(md, "| (c) | proposed |")[column] == "–"  # episodes.csv: inf
+    assert _row(md, "| (d) | proposed |")[column] == "0.015"  # the metric, not the csv's 0.5
+    assert _row(md, "| (d) | PID |")[column] == "–"  # metric inf (stored as float max)
+    assert "2 % settling time of ‖e1‖ after an initial offset of 0.05 rad" in md
+    torque = header.index("Max torque τ1 / τ2 (N·m)")
+    assert _row(md, "| (a) | proposed |")[torque] == "312.0 / 145.0"
+    assert _row(md, "| (a) | proposed |")[header.index("Time at limit (s)")] == "0.250"
+    assert "Torque limit: ±400, ±300 N·m" in md
+
+
+def test_several_agents_are_told_apart_not_averaged_together() -> None:
+    from armexp.report import tables
+
+    rows = []
+    for agent, preset, aided, tracking in (
+        ("sac_quick (aided: demonstrations)", "sac_quick", True, 0.5),
+        ("sac_paper (plain SAC, no learning aids)", "sac_paper", False, 2.0),
+    ):
+        for controller in ("adaptive", "pid"):
+            episode = _episode(controller, "a", tracking=tracking)
+            rows.append({**episode, "eval_run": preset, "agent": agent,
+                         "agent_preset": preset, "aided": aided})  # fmt: skip
+    episodes = pd.DataFrame(rows)
+    table = tables.table_three(episodes)
+    proposed = table.shown[table.shown.Control == "proposed"]
+    assert list(proposed.Agent) == ["sac_quick (aided)", "sac_paper"]
+    assert list(proposed["Tracking error (cm)"]) == ["0.500", "2.000"]
+    comparison = tables.comparison(episodes)
+    assert set(comparison.shown.Agent) == {"sac_quick (aided)", "sac_paper"}
+
+
+def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
+    from armexp.report.agent import AgentInfo, aids_of
+
+    plainish = aids_of({"relabel": 0.5, "average_tail": 0.25, "clearance": 0.03, "n_steps": 5})
+    assert [a.name for a in plainish] == [
+        "hindsight relabelling",
+        "collision clearance",
+        "weight averaging",
+    ]
+    info = AgentInfo("t", "custom", plainish)
+    assert not info.aided and "without privileged knowledge" in info.label
+    shaped = aids_of({"shaping": 30.0})
+    assert AgentInfo("t", "custom", shaped).aided
+    # Add-ons composed from config lists are named by their target.
+    addons = aids_of({"addons": [{"_target_": "armexp.agents.expert.ExpertLabels"}]})
+    assert [(a.name, a.privileged) for a in addons] == [("ExpertLabels", True)]
+    assert AgentInfo("t", "sac_paper", []).label == "sac_paper (plain SAC, no learning aids)"

@@ -7,6 +7,7 @@ were used. Nothing here imports the simulation, environment or agent code.
 
 from __future__ import annotations
 
+import math
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,11 @@ STAGE_TAG = "armexp.stage"
 PARENT_TAG = "mlflow.parentRunId"
 TASKS = ("a", "b", "c", "d")
 CONTROLLERS = ("adaptive", "pid")
+
+
+def metric_value(value: float) -> float:
+    """A metric as logged: MLflow stores ±inf as ±float max, so those read back as ±inf."""
+    return math.copysign(math.inf, value) if abs(value) >= 1e300 else float(value)
 
 
 @dataclass

@@ -6,6 +6,11 @@ train and tune runs, reads everything through MLflow's API into pandas, and writ
 ``report.out_dir`` (default ``<runs_dir>/report``): tables as Markdown, LaTeX and CSV, figures as
 PNG and PDF, ``runs.csv`` and ``index.html``. The folder is then logged as the artifact
 ``report/`` of a report run. It never imports the simulation, environment or agent code.
+
+Each eval run's agent (preset, learning aids, budget spent) comes from its train run
+(`armexp.report.agent`); the eval run's own ``agent.*`` params are its stage defaults, not the
+policy's. Its ``<controller>.<task>.<metric>`` metrics override ``episodes.csv`` for the paper
+tasks; ``eval.initial_offset`` and ``robot.torque_limit`` params go into the footnotes.
 """
 
 from __future__ import annotations
@@ -18,14 +23,17 @@ from typing import Any
 
 import mlflow
 import pandas as pd
+import yaml
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
 from armexp.report import figures, tables
-from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, select
+from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
+from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value, select
 
 REPORT_RUNS_TAG = "armexp.report_runs"
+TRAIN_RUN_TAG = "armexp.train_run"
 
 
 def out_dir(cfg: DictConfig) -> Path:
@@ -64,15 +72,22 @@ def run(cfg: DictConfig) -> dict[str, float]:
 
 def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -> dict[str, float]:
     """Every table and figure of the report into ``folder``; returns headline numbers."""
-    episodes = _episodes(selection, reader)
     primary = selection.evals[0]
-    train_id = primary.data.tags.get("armexp.train_run", "")
-    train_cfg = reader.yaml(train_id, "config.yaml") if train_id else None
+    train_id = primary.data.tags.get(TRAIN_RUN_TAG, "")
+    configs = {tid: reader.yaml(tid, "config.yaml") for tid in sorted(selection.trains)}
+    train_cfg = configs.get(train_id)
+    agents = _agents(selection, configs)
+    episodes = _episodes(selection, reader, agents)
+    ctx = _context(selection, agents, train_cfg)
 
     made: list[tables.Table] = []
     if train_cfg:
-        made += [tables.table_one(train_cfg), tables.table_two(train_cfg)]
-    made += [tables.table_three(episodes), tables.comparison(episodes)]
+        trains = sorted(
+            {a.train_run: a for a in agents.values() if a.known}.values(),
+            key=lambda a: a.train_run != train_id,
+        )
+        made += [tables.table_one(train_cfg), tables.table_two(train_cfg, trains)]
+    made += [tables.table_three(episodes, ctx), tables.comparison(episodes, ctx)]
     tunes = _tunes(selection, reader)
     if tunes:
         made.append(tables.cso_table(tunes))
@@ -85,7 +100,7 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
         figures.save(fig, folder / "figures", name)
         pictures.append((name, caption))
 
-    runs_frame = _runs_table(selection)
+    runs_frame = _runs_table(selection, agents)
     runs_frame.to_csv(folder / "runs.csv", index=False)
     trajectories = {
         task: frame
@@ -145,18 +160,54 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
             "cso_convergence",
             "Cuckoo search: best objective per iteration.",
         )
-    _index(folder, made, pictures, runs_frame, selection, cfg)
+    _index(folder, made, pictures, runs_frame, selection, cfg, ctx.agent)
     return _headline(episodes)
 
 
-def _episodes(selection: Selection, reader: Reader) -> pd.DataFrame:
+def _agents(selection: Selection, configs: dict[str, Any]) -> dict[str, AgentInfo]:
+    """The agent behind each eval run (by eval run id), from its train run."""
+    out = {}
+    for ev in selection.evals:
+        tid = ev.data.tags.get(TRAIN_RUN_TAG, "")
+        out[ev.info.run_id] = agent_info(tid, selection.trains.get(tid), configs.get(tid))
+    return out
+
+
+def _param(text: str | None) -> Any:
+    """A logged param as a value (None for a missing or null one)."""
+    if text is None:
+        return None
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+    return None if value in ("None", "") else value
+
+
+def _episodes(selection: Selection, reader: Reader, agents: dict[str, AgentInfo]) -> pd.DataFrame:
+    """Every episode of the selected eval runs (``episodes.csv``), with the agent that ran it,
+    and the eval run's ``<controller>.<task>.<metric>`` metrics over the paper tasks' rows
+    (the same numbers where both exist; a metric ±inf, stored as ±float max, reads as ±inf)."""
     frames = []
     for ev in selection.evals:
         frame = reader.frame(ev.info.run_id, "episodes.csv")
         if frame is None:
             continue
-        frame.insert(0, "eval_run", ev.info.run_id)
+        run_id = ev.info.run_id
+        frame.insert(0, "eval_run", run_id)
         frame.insert(1, "seed", ev.data.params.get("seed", ""))
+        info = agents[run_id]
+        frame.insert(2, "agent", info.label)
+        frame.insert(3, "agent_preset", info.preset)
+        frame.insert(4, "aided", info.aided)
+        paper = frame.task.isin(list(TASKS))
+        for name, value in sorted(ev.data.metrics.items()):
+            label, _, rest = name.partition(".")
+            task, _, key = rest.partition(".")
+            if label in CONTROLLERS and task in TASKS and key and "." not in key:
+                rows = paper & (frame.controller == label) & (frame.task == task)
+                if rows.any():
+                    frame.loc[rows, key] = metric_value(value)
         frames.append(frame)
     if not frames:
         from armexp.config import ConfigError
@@ -166,6 +217,44 @@ def _episodes(selection: Selection, reader: Reader) -> pd.DataFrame:
             "artifact (were their artifacts deleted?)."
         )
     return pd.concat(frames, ignore_index=True)
+
+
+def _values(texts: list[str | None], show: Any) -> str | None:
+    """One logged param over the eval runs, shown; None when no run logs it."""
+    shown = list(dict.fromkeys(show(v) for v in map(_param, texts) if v is not None))
+    if not shown:
+        return None
+    return shown[0] if len(shown) == 1 else " / ".join(shown) + " (differs between runs)"
+
+
+def _per_joint(value: Any, unit: str, sign: str = "") -> str:
+    values = value if isinstance(value, list) else [value]
+    return ", ".join(f"{sign}{float(v):g}" for v in values) + f" {unit}"
+
+
+def _context(
+    selection: Selection, agents: dict[str, AgentInfo], train_cfg: dict[str, Any] | None
+) -> tables.Context:
+    """What Tables III and the PID comparison say beside their numbers."""
+    infos = list({a.label: a for a in agents.values()}.values())
+    counts = [sum(a.label == i.label for a in agents.values()) for i in infos]
+    params = [ev.data.params for ev in selection.evals]
+    limit = _values(
+        [p.get("robot.torque_limit") for p in params], lambda v: _per_joint(v, "N·m", "±")
+    )
+    if limit is None and train_cfg and train_cfg.get("robot", {}).get("torque_limit"):
+        limit = _per_joint(train_cfg["robot"]["torque_limit"], "N·m", "±")
+    threshold = (train_cfg or {}).get("env", {}).get("reach_threshold", 0.04)
+    return tables.Context(
+        agent=caption(infos, counts),
+        initial_offset=_values(
+            [p.get("eval.initial_offset") for p in params], lambda v: _per_joint(v, "rad")
+        ),
+        torque_limit=limit,
+        reach_threshold=float(threshold),
+        plain_missing=any(a.aided for a in infos)
+        and not any(a.known and not a.aids for a in infos),
+    )
 
 
 def _tunes(selection: Selection, reader: Reader) -> list[dict[str, Any]]:
@@ -190,7 +279,8 @@ def _tunes(selection: Selection, reader: Reader) -> list[dict[str, Any]]:
 def _learning_curves(selection: Selection, reader: Reader) -> dict[str, dict[str, pd.DataFrame]]:
     curves = {}
     for run_id, run in sorted(selection.trains.items()):
-        label = f"seed {run.data.params.get('seed', '?')} ({run_id[:8]})"
+        preset = run.data.tags.get(PRESET_TAG) or run.data.params.get("agent.name", "?")
+        label = f"{preset}, seed {run.data.params.get('seed', '?')} ({run_id[:8]})"
         curves[label] = {
             "success": reader.history(run_id, "rollout/success_rate_100"),
             "reward": reader.history(run_id, "episode/reward"),
@@ -199,20 +289,26 @@ def _learning_curves(selection: Selection, reader: Reader) -> dict[str, dict[str
     return curves
 
 
-def _runs_table(selection: Selection) -> pd.DataFrame:
+def _runs_table(selection: Selection, agents: dict[str, AgentInfo]) -> pd.DataFrame:
+    """One row per run used; ``agent`` is the train run's preset (an eval run's own
+    ``agent.*`` params are its stage defaults, not the policy's)."""
+    by_train = {a.train_run: a for a in agents.values()}
     rows = []
     for run in selection.all_runs:
         p = run.data.params
+        stage = run.data.tags.get("armexp.stage", "")
+        info = agents.get(run.info.run_id) if stage == "eval" else by_train.get(run.info.run_id)
         rows.append(
             {
                 "run_id": run.info.run_id,
-                "stage": run.data.tags.get("armexp.stage", ""),
+                "stage": stage,
                 "status": run.info.status,
                 "seed": p.get("seed", ""),
                 "controller": p.get("controller.name", ""),
                 "robot": p.get("robot.name", ""),
                 "obstacles": p.get("obstacles.name", ""),
-                "agent": p.get("agent.name", ""),
+                "agent": info.preset if info else "",
+                "aided": ("yes" if info.aided else "no") if info and info.known else "",
                 "git_commit": run.data.tags.get("armexp.git_commit", "")[:10],
             }
         )
@@ -236,6 +332,7 @@ def _index(
     runs_frame: pd.DataFrame,
     selection: Selection,
     cfg: DictConfig,
+    agent: str,
 ) -> None:
     ids = ",".join(r.info.run_id for r in selection.evals)
     command = f"armexp report report.eval_runs=[{ids}] tracking.runs_dir={cfg.tracking.runs_dir}"
@@ -247,10 +344,13 @@ def _index(
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}"
         "table{border-collapse:collapse;margin:.5em 0}td,th{border-bottom:1px solid #ccc;"
         "padding:.2em .6em;text-align:left}img{max-width:100%}.note{color:#555;font-size:90%}"
-        "code{background:#f4f4f4;padding:.1em .3em}</style></head><body>",
+        "code{background:#f4f4f4;padding:.1em .3em}"
+        ".agent{border-left:4px solid #c60;padding:.2em .6em;background:#fff6ec}</style>"
+        "</head><body>",
         "<h1>armexp report</h1>",
         f"<p>Made from {len(selection.evals)} eval run(s): {html.escape(selection.how)}. "
         "Every number below was read from the MLflow store; nothing was re-simulated.</p>",
+        f"<p class='agent'>{html.escape(agent)}</p>",
         "<h2>Tables</h2>",
         "<p>Each table is also in <code>tables/</code> as Markdown, LaTeX (booktabs) and CSV.</p>",
         *(t.html() for t in made),

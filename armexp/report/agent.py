@@ -1,0 +1,242 @@
+"""Which agent produced a result: its preset, its learning aids and the budget it spent.
+
+The paper's agent is model-free SAC that learns from interaction alone (DESIGN §7). A preset that
+adds a learning aid using privileged knowledge of the planner or the obstacles (demonstrations,
+cloning, an expert's labels, shaping by the planner's time to go) is *aided*, and every table
+built from it says so. Aids that use no such knowledge (relabelling, weight averaging, …) are
+named too, but do not make a run aided.
+
+Everything is read from the train run: the preset from the tag ``armexp.agent_preset`` (Hydra's
+``agent`` group choice) or else the param ``agent.name``; the aids from the run's resolved
+``config.yaml`` (else its ``agent.*`` params); the budget spent from its ``final/*`` metrics (else
+the last values logged while training).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+from mlflow.entities import Run
+
+from armexp.report.runs import metric_value
+
+PRESET_TAG = "armexp.agent_preset"
+STOP_TAG = "armexp.stop_reason"
+#: Modules whose add-ons use the planner's or the obstacles' privileged knowledge, for aids
+#: composed from config lists (``_target_``) rather than agent keys.
+PRIVILEGED_MODULES = (
+    "armexp.agents.demonstrations",
+    "armexp.agents.cloning",
+    "armexp.agents.expert",
+    "armexp.agents.shaping",
+)
+#: Train-run metrics of the budget spent, newest name first (final/* are logged at the end;
+#: the others while training, so a KILLED run still shows how far it got).
+SPENT_METRICS = {
+    "env_steps": ("final/env_steps", "time/total_timesteps"),
+    "episodes": ("final/episodes", "rollout/episodes"),
+    "wall_s": ("final/wall_s", "time/wall_s"),
+    "demo_steps": ("demonstrations/steps",),
+}
+
+
+@dataclass(frozen=True)
+class Aid:
+    """One learning aid that is on: a short name for captions, its setting for Table II."""
+
+    name: str
+    detail: str
+    privileged: bool
+
+
+@dataclass
+class AgentInfo:
+    """The agent of one train run, as used."""
+
+    train_run: str
+    preset: str
+    aids: list[Aid] = field(default_factory=list)
+    spent: dict[str, float] = field(default_factory=dict)
+    stop_reason: str = ""
+    status: str = ""
+    known: bool = True
+
+    @property
+    def aided(self) -> bool:
+        return any(a.privileged for a in self.aids)
+
+    @property
+    def label(self) -> str:
+        """``preset (aided: …)``: what a caption says about this agent."""
+        if not self.known:
+            return f"unknown (train run {self.train_run or '?'} is not in this store)"
+        privileged = [a.name for a in self.aids if a.privileged]
+        other = [a.name for a in self.aids if not a.privileged]
+        if privileged:
+            text = f"aided: {', '.join(privileged)}"
+            if other:
+                text += f"; also {', '.join(other)}"
+            return f"{self.preset} ({text})"
+        if other:
+            return f"{self.preset} (learning aids without privileged knowledge: {', '.join(other)})"
+        return f"{self.preset} (plain SAC, no learning aids)"
+
+
+def _num(value: Any) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return 0.0
+    return out if math.isfinite(out) else 0.0
+
+
+def _g(value: Any) -> str:
+    return f"{_num(value):g}"
+
+
+def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) -> list[Aid]:
+    """The learning aids an agent config (and the train stage's config) turn on."""
+    train = train or {}
+    out: list[Aid] = []
+    if _num(agent.get("demonstrations")) > 0:
+        out.append(
+            Aid(
+                "demonstrations",
+                f"{int(_num(agent['demonstrations']))} planner demonstrations in the replay buffer",
+                True,
+            )
+        )
+    if _num(agent.get("bc_weight")) > 0:
+        q_filter = ", Q-filtered" if agent.get("bc_q_filter") else ""
+        out.append(
+            Aid(
+                "behaviour cloning",
+                f"behaviour cloning of the demonstrations (weight {_g(agent['bc_weight'])}"
+                f"{q_filter})",
+                True,
+            )
+        )
+    if agent.get("bc_expert") is True:
+        out.append(
+            Aid("DAgger expert", "DAgger: the planner's action cloned on every visited state", True)
+        )
+    if _num(agent.get("shaping")) > 0:
+        out.append(
+            Aid(
+                "planner reward shaping",
+                f"reward shaped by the planner's time to go ({_g(agent['shaping'])} per s)",
+                True,
+            )
+        )
+    if _num(agent.get("relabel")) > 0:
+        out.append(
+            Aid(
+                "hindsight relabelling",
+                f"hindsight relabelling ({_num(agent['relabel']) * 100:g} % of each batch)",
+                False,
+            )
+        )
+    if _num(agent.get("clearance")) > 0:
+        out.append(
+            Aid(
+                "collision clearance",
+                f"collisions counted {_g(agent['clearance'])} m from the obstacles in training",
+                False,
+            )
+        )
+    if _num(agent.get("average_tail")) > 0:
+        out.append(
+            Aid(
+                "weight averaging",
+                f"final actor averaged over the last {_num(agent['average_tail']) * 100:g} % of "
+                "the budget",
+                False,
+            )
+        )
+    if train.get("keep_best") is True and _num(train.get("eval_every")) > 0:
+        out.append(
+            Aid(
+                "best-check selection",
+                "final model: the best of the held-out checks while training",
+                False,
+            )
+        )
+    for target in _targets(agent):
+        module, _, name = target.rpartition(".")
+        privileged = any(module.startswith(m) for m in PRIVILEGED_MODULES)
+        out.append(Aid(name or target, f"add-on {target}", privileged))
+    return out
+
+
+def _targets(node: Any) -> list[str]:
+    """``_target_`` of every add-on composed into the agent config (Hydra instantiation)."""
+    found: list[str] = []
+    if isinstance(node, Mapping):
+        if isinstance(node.get("_target_"), str):
+            found.append(node["_target_"])
+        for key, value in node.items():
+            if key != "_target_":
+                found += _targets(value)
+    elif isinstance(node, Sequence) and not isinstance(node, str):
+        for value in node:
+            found += _targets(value)
+    return found
+
+
+def _from_params(params: Mapping[str, str], prefix: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, text in params.items():
+        if key.startswith(prefix):
+            try:
+                out[key[len(prefix) :]] = yaml.safe_load(text)
+            except yaml.YAMLError:
+                out[key[len(prefix) :]] = text
+    return out
+
+
+def agent_info(train_id: str, run: Run | None, cfg: Mapping[str, Any] | None) -> AgentInfo:
+    """The agent of train run ``train_id`` (``run`` None: not in the store)."""
+    if run is None:
+        return AgentInfo(train_run=train_id, preset="unknown", known=False)
+    params, tags, metrics = run.data.params, run.data.tags, run.data.metrics
+    agent = dict(cfg["agent"]) if cfg and isinstance(cfg.get("agent"), Mapping) else {}
+    agent = agent or _from_params(params, "agent.")
+    train = dict(cfg["train"]) if cfg and isinstance(cfg.get("train"), Mapping) else {}
+    train = train or _from_params(params, "train.")
+    preset = tags.get(PRESET_TAG) or params.get("agent.name") or str(agent.get("name") or "?")
+    spent = {}
+    for key, names in SPENT_METRICS.items():
+        for name in names:
+            if name in metrics:
+                spent[key] = metric_value(metrics[name])
+                break
+    return AgentInfo(
+        train_run=train_id,
+        preset=preset,
+        aids=aids_of(agent, train),
+        spent=spent,
+        stop_reason=tags.get(STOP_TAG, ""),
+        status=run.info.status,
+    )
+
+
+def caption(infos: Sequence[AgentInfo], counts: Sequence[int] | None = None) -> str:
+    """One line naming the agent(s) behind a table, and whether they were aided.
+
+    ``counts``: how many eval runs each agent produced (said when there are several agents).
+    """
+    labels: dict[str, int] = {}
+    for i, info in enumerate(infos):
+        labels[info.label] = labels.get(info.label, 0) + (counts[i] if counts else 1)
+    if not labels:
+        return "Agent: unknown (no train run recorded)."
+    not_plain = any(i.aids for i in infos if i.known)
+    trailer = " — not the paper's plain SAC" if not_plain else ""
+    if len(labels) == 1:
+        return f"Agent: {next(iter(labels))}{trailer}."
+    parts = [f"{label} in {n} eval run{'s' if n != 1 else ''}" for label, n in labels.items()]
+    return f"Agents: {'; '.join(parts)}."
