@@ -42,7 +42,7 @@ def build_uncertainty(robot: DictConfig) -> Uncertainty:
 
 
 def build_plant(cfg: DictConfig) -> Plant:
-    limit = cfg.controller.torque_limit
+    limit = cfg.robot.torque_limit
     return Plant.build(
         build_arm(cfg.robot),
         build_uncertainty(cfg.robot),

@@ -5,7 +5,11 @@ Run: ``python benchmarks/tune_speed.py`` (``--quick`` for a smaller budget).
 Prints, measured in the same run:
 
 * the paper budget (15 nests, 200 iterations ≈ 6000 candidate evaluations, each a closed-loop
-  simulation of the default objective's scenarios) through the batched compiled core, all cores;
+  simulation of the default objective's scenarios) through the batched compiled core, all cores,
+  with the constraints of DESIGN §5 on (the default);
+* the cost of the constraints: the time spent in the stability check during that run, and the
+  same budget with the constraints off (``gain_margin=null``, no effort terms) — unstable
+  candidates are not simulated, so the constrained search can be the faster one;
 * evaluations per second of that run;
 * a plain per-candidate Python loop over the plain-numpy reference simulator, timed on a few
   candidates and extrapolated per evaluation;
@@ -33,17 +37,29 @@ def plain_loop_seconds_per_eval(obj, candidates: np.ndarray) -> float:  # type: 
     start = time.perf_counter()
     for gains in candidates:
         for s in range(sc.q0.shape[0]):
-            cmds = np.repeat(sc.commands[s], sc.hold_steps, axis=0)
             reference.simulate(
                 obj.plant,
                 obj.kind,
                 gains,
                 sc.q0[s] + sc.offset[s],
                 sc.q0[s],
-                cmds,
+                sc.commands[s],
                 int(sc.seeds[s]),
+                hold=sc.hold_steps,
+                ramp=obj.ramp,
             )
     return (time.perf_counter() - start) / len(candidates)
+
+
+def _search(obj, cfg, lower: np.ndarray, upper: np.ndarray):  # type: ignore[no-untyped-def]
+    t = cfg.tuner
+    start = time.perf_counter()
+    res = cuckoo_search(
+        obj, lower, upper, n_nests=int(t.n_nests), n_iterations=int(t.n_iterations),
+        pa=float(t.pa), beta=float(t.beta), step_scale=float(t.step_scale), seed=0,
+        abandon=str(t.abandon),
+    )  # fmt: skip
+    return res, time.perf_counter() - start
 
 
 def main() -> None:
@@ -53,16 +69,31 @@ def main() -> None:
     ap.add_argument("--plain-candidates", type=int, default=2)
     args = ap.parse_args()
     iterations = 40 if args.quick else 200
-    cfg = compose_config([f"controller={args.controller}", f"tuner.n_iterations={iterations}"])
+    base = [f"controller={args.controller}", f"tuner.n_iterations={iterations}"]
+    cfg = compose_config(base)
     obj = build_objective(cfg)
     _, lower, upper = search_box(cfg)
     obj(np.atleast_2d(lower))  # compile outside the timing
 
-    start = time.perf_counter()
-    res = cuckoo_search(
-        obj, lower, upper, n_nests=cfg.tuner.n_nests, n_iterations=iterations, seed=0
-    )
-    wall = time.perf_counter() - start
+    check_time = 0.0
+    check = obj.stable
+
+    def timed_check(candidates: np.ndarray) -> np.ndarray:
+        nonlocal check_time
+        t0 = time.perf_counter()
+        out = check(candidates)
+        check_time += time.perf_counter() - t0
+        return out
+
+    obj.stable = timed_check  # type: ignore[method-assign]
+    res, wall = _search(obj, cfg, lower, upper)
+    free = build_objective(
+        compose_config(
+            [*base, "tuner.objective.gain_margin=null", "tuner.objective.effort_weight=0",
+             "tuner.objective.saturation_weight=0"]
+        )
+    )  # fmt: skip
+    res_free, wall_free = _search(free, cfg, lower, upper)
     evals_per_s = res.n_evaluations / wall
     sc = obj.scenarios
     steps = res.n_evaluations * sc.q0.shape[0] * sc.n_steps
@@ -85,6 +116,13 @@ def main() -> None:
         f"{plain * res.n_evaluations / 60:.0f} min"
     )
     print(f"speed-up over the plain loop: {ratio:.0f}x")
+    print(
+        f"constraints: stability check {check_time:.2f} s of the {wall:.2f} s "
+        f"({100 * check_time / wall:.0f} %); {int((~np.isfinite(res.scores)).sum())} of "
+        f"{res.n_evaluations} candidates infeasible; without constraints the same budget took "
+        f"{wall_free:.2f} s (best W {res_free.best_f:.4g}), so they cost "
+        f"{wall - wall_free:+.2f} s"
+    )
     if not args.quick:
         print(f"target paper budget <= 10 s: {'PASS' if wall <= 10 else 'MISS'} ({wall:.2f} s)")
     print(f"target >= 100x plain loop: {'PASS' if ratio >= 100 else 'MISS'} ({ratio:.0f}x)")

@@ -84,7 +84,11 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["controller.gains.a1=abc"], ["controller.gains.a1=abc", "number"]),
         (["tuner.pa=1.5"], ["tuner.pa=1.5", "[0.0, 1.0]"]),
         (["tuner.n_nests=1"], ["tuner.n_nests=1", "≥ 2"]),
-        (["robot=three_link", "controller=pid"], ["controller.gains.kp", "3 joints"]),
+        (["tuner.abandon=best"], ["tuner.abandon='best'", "worst, per_component"]),
+        (
+            ["robot=three_link", "controller=pid", "controller.gains.kp=[1.0,2.0]"],
+            ["controller.gains.kp", "3 joints"],
+        ),
         (["robot.q0=[3.0,0.0]"], ["robot.q0[0]=3.0", "within"]),
         (["nonsense_key=1"], ["nonsense_key", "not a config key"]),
         (["scenario.kind=zigzag"], ["scenario.kind='zigzag'", "switching, hold, sine"]),

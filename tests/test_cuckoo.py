@@ -197,3 +197,129 @@ def test_callback_sees_every_iteration_in_order() -> None:
     np.testing.assert_array_equal([s[1] for s in seen], res.history)
     # The final result is not affected by the read-only views given to the callback.
     assert res.evaluations.flags.writeable
+
+
+# ----------------------------------------------------------------- abandonment rules (DESIGN §5)
+RULES = ("worst", "per_component")
+
+
+@pytest.mark.parametrize("rule", RULES)
+def test_each_rule_is_deterministic_for_a_seed_and_batch_independent(rule: str) -> None:
+    def one(x: FloatArray) -> float:
+        return float(rastrigin(x[None, :])[0])
+
+    a = cuckoo_search(rastrigin, BOX_LO, BOX_HI, seed=5, n_iterations=40, abandon=rule)
+    b = cuckoo_search(rastrigin, BOX_LO, BOX_HI, seed=5, n_iterations=40, abandon=rule)
+    c = cuckoo_search(one, BOX_LO, BOX_HI, seed=5, n_iterations=40, abandon=rule, batch=False)
+    d = cuckoo_search(rastrigin, BOX_LO, BOX_HI, seed=6, n_iterations=40, abandon=rule)
+    assert_same(a, b)
+    assert_same(a, c)
+    assert not np.array_equal(a.evaluations, d.evaluations)
+    assert np.all(np.diff(a.history) <= 0.0) and a.history[-1] == a.best_f
+
+
+def test_the_rules_differ() -> None:
+    a = cuckoo_search(sphere, BOX_LO, BOX_HI, seed=0, n_iterations=5, abandon="worst")
+    b = cuckoo_search(sphere, BOX_LO, BOX_HI, seed=0, n_iterations=5, abandon="per_component")
+    assert a.n_evaluations != b.n_evaluations
+    assert not np.array_equal(a.best_x, b.best_x)
+
+
+@pytest.mark.parametrize("rule", RULES)
+def test_each_rule_minimises_a_sphere_within_a_small_budget(rule: str) -> None:
+    for seed in range(5):
+        box = ([-5.12] * 3, [5.12] * 3)
+        res = cuckoo_search(sphere, *box, n_iterations=100, step_scale=0.3, seed=seed, abandon=rule)
+        assert res.best_f < 1e-3, (seed, res.best_f)
+        assert res.n_evaluations == len(res.evaluations)
+
+
+@pytest.mark.parametrize(
+    ("n_nests", "pa", "m"),
+    [(15, 0.25, 4), (10, 0.5, 5), (8, 0.1, 1), (8, 0.05, 0), (5, 1.0, 4), (6, 0.75, 5)],
+)
+def test_worst_evaluates_round_pa_eta_new_nests_per_iteration(
+    n_nests: int, pa: float, m: int
+) -> None:
+    rec = Recorder(sphere)
+    n_iter = 7
+    res = cuckoo_search(
+        rec, BOX_LO, BOX_HI, n_nests=n_nests, pa=pa, n_iterations=n_iter, abandon="worst"
+    )
+    sizes = [len(r) for r in rec.rows]
+    # Initial population, then per iteration the Lévy batch and (when m > 0) the m new nests.
+    assert sizes == [n_nests] + ([n_nests, m] if m else [n_nests]) * n_iter
+    assert res.n_evaluations == n_nests + n_iter * (n_nests + m) == len(res.scores)
+    expected_iters = np.r_[np.zeros(n_nests), np.repeat(np.arange(1, n_iter + 1), n_nests + m)]
+    np.testing.assert_array_equal(res.iterations, expected_iters)
+
+
+def test_worst_discards_exactly_the_worst_nests_and_rebuilds_them_by_the_walk() -> None:
+    """Replay the record: the Lévy batch is greedy; then the m worst nests (stable order) are
+    replaced outright by x_w + r (x_a - x_b) for some nests a, b and some r in [0, 1]."""
+    n, d, n_iter = 15, 4, 60
+    m = round(0.25 * n)
+    lo, hi = -50.0, 50.0  # wide box, optimum inside: clipping is rare; clipped rows are skipped
+    rec = Recorder(lambda x: np.sum((x - 1.0) ** 2, axis=1))
+    res = cuckoo_search(
+        rec, [lo] * d, [hi] * d, n_nests=n, n_iterations=n_iter, step_scale=0.3, abandon="worst"
+    )
+    rows = iter(rec.rows)
+    nests = next(rows).copy()
+    keys = rec.f(nests)
+    checked = 0
+    for it in range(n_iter):
+        levy = next(rows)
+        f = rec.f(levy)
+        better = f < keys
+        nests[better], keys[better] = levy[better], f[better]
+        new = next(rows)
+        assert len(new) == m
+        worst = np.argsort(keys, kind="stable")[n - m :]
+        assert int(np.argmin(keys)) not in worst
+        for k, w in enumerate(worst):
+            if np.any(np.isin(new[k], [lo, hi])):
+                continue
+            step = new[k] - nests[w]
+            diffs = nests[:, None, :] - nests[None, :, :]  # (a, b, d)
+            nonzero = diffs != 0.0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = step / diffs
+            r_min = np.where(nonzero, ratio, np.inf).min(axis=2)
+            r_max = np.where(nonzero, ratio, -np.inf).max(axis=2)
+            ok = nonzero.any(axis=2) & np.all(nonzero | (step == 0.0), axis=2)
+            ok &= (r_max - r_min < 1e-9) & (r_min >= -1e-12) & (r_max <= 1.0 + 1e-12)
+            assert ok.any() or np.all(step == 0.0), (it, k)
+            checked += 1
+        nests[worst], keys[worst] = new, rec.f(new)  # unconditional replacement
+        assert res.history[it] == keys.min()
+    assert checked > n_iter * m // 2
+    np.testing.assert_array_equal(res.best_x, nests[np.argmin(keys)])
+
+
+@pytest.mark.parametrize("pa", [0.25, 0.6])
+def test_per_component_rebuilds_components_with_probability_pa(pa: float) -> None:
+    """With a flat objective no proposal is ever strictly better, so the nests stay the initial
+    ones and every abandonment row differs from its nest exactly where the walk fired: with
+    probability pa, times 1 - 1/n for the two permutations picking the same nest."""
+    n, d, n_iter = 15, 10, 200
+    rec = Recorder(lambda x: np.zeros(len(x)))
+    res = cuckoo_search(
+        rec, [0.0] * d, [1.0] * d, n_nests=n, pa=pa, n_iterations=n_iter, abandon="per_component"
+    )
+    nests = rec.rows[0]
+    abandonment = np.stack(rec.rows[2::2])  # (n_iter, n, d)
+    assert abandonment.shape == (n_iter, n, d)
+    changed = abandonment != nests[None]
+    expected = pa * (1.0 - 1.0 / n)
+    assert abs(changed.mean() - expected) < 0.01, (changed.mean(), expected)
+    # Every nest and every component is rebuilt at about the same rate.
+    assert np.all(np.abs(changed.mean(axis=(0, 2)) - expected) < 0.05)
+    assert np.all(np.abs(changed.mean(axis=(0, 1)) - expected) < 0.04)
+    np.testing.assert_array_equal(res.best_x, nests[0])
+
+
+def test_unknown_rule_is_a_one_sentence_value_error() -> None:
+    with pytest.raises(ValueError, match=r"abandon='best'.*worst, per_component") as info:
+        cuckoo_search(sphere, [0.0], [1.0], abandon="best")
+    assert "\n" not in str(info.value)

@@ -17,6 +17,7 @@ from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import clearance, segment_hits, tips
 from armexp.envs.reach import ReachEnv, ReachSettings
 from armexp.envs.workspace import build_workspace
+from armexp.sim.core import trajectory_columns
 
 
 @pytest.fixture(scope="module")
@@ -83,13 +84,26 @@ def test_observation_is_eq_5a(paper_settings: ReachSettings) -> None:
 
 
 def test_action_is_scaled_to_the_velocity_bounds(paper_settings: ReachSettings) -> None:
+    held = _with(paper_settings, reference="hold")
+    held.reset(seed=0)
+    q_d0 = held.sim.q_d.copy()
+    held.step(np.array([1.0, -1.0], dtype=np.float32))
+    np.testing.assert_allclose(held.sim.q_d - q_d0, [0.1 * 0.03, -0.4 * 0.03], rtol=1e-9)
+    held.step(np.array([5.0, 5.0], dtype=np.float32))  # clipped to the bounds
+    np.testing.assert_allclose(held.sim.q_d - q_d0, [0.2 * 0.03, 0.0], atol=1e-12)
+    # The default ramp reaches each command at the period's end: q_d gains the mean of the
+    # previous and the new command over the period (from rest at the start).
     env = ReachEnv(paper_settings)
     env.reset(seed=0)
-    q_d0 = env.sim.q_d.copy()
     env.step(np.array([1.0, -1.0], dtype=np.float32))
-    np.testing.assert_allclose(env.sim.q_d - q_d0, [0.1 * 0.03, -0.4 * 0.03], rtol=1e-9)
-    env.step(np.array([5.0, 5.0], dtype=np.float32))  # clipped to the bounds
-    np.testing.assert_allclose(env.sim.q_d - q_d0, [0.2 * 0.03, 0.0], atol=1e-12)
+    np.testing.assert_allclose(env.sim.q_d - q_d0, [0.05 * 0.03, -0.2 * 0.03], rtol=1e-9)
+    env.step(np.array([5.0, 5.0], dtype=np.float32))
+    np.testing.assert_allclose(env.sim.q_d - q_d0, [0.15 * 0.03, -0.2 * 0.03], rtol=1e-9)
+    rows = ReachEnv(paper_settings, record=True)
+    rows.reset(seed=0)
+    rows.step(np.array([1.0, -1.0], dtype=np.float32))
+    dqd = rows.trajectory()[:, 7:9]  # dq_d_1, dq_d_2
+    np.testing.assert_allclose(dqd[:, 0], 0.1 * np.arange(30) / 30, atol=1e-15)
 
 
 # -------------------------------------------------------------------- rewards and endings
@@ -189,7 +203,8 @@ def test_episode_truncates_after_max_steps(paper_settings: ReachSettings) -> Non
 
 def test_divergence_is_an_outcome_not_a_crash(paper_settings: ReachSettings) -> None:
     unstable = np.array([-1e7, -1e7, 0.0, 0.0, 0.0, 0.0])  # negative PID gains
-    env = _with(paper_settings, controller="pid", gains=unstable)
+    unlimited = dataclasses.replace(paper_settings.plant, torque_limit=np.full(2, np.inf))
+    env = _with(paper_settings, controller="pid", gains=unstable, plant=unlimited)
     env.reset(seed=0)
     for _ in range(100):
         obs, reward, terminated, _, info = env.step(np.zeros(2, dtype=np.float32))
@@ -281,7 +296,10 @@ def test_record_keeps_the_1khz_rows(paper_settings: ReachSettings) -> None:
     for _ in range(3):
         env.step(np.array([0.3, 0.3], dtype=np.float32))
     rows = env.trajectory()
-    assert rows.shape == (90, 4 + 5 * 2 + 1)
+    columns = trajectory_columns(2)
+    assert rows.shape == (90, len(columns) + 1)
     np.testing.assert_allclose(np.diff(rows[:, 0]), 1e-3, rtol=1e-9)
-    err = np.hypot(rows[:, -3] - 1.40, rows[:, -2] - 1.00)
+    x, y = env.settings.tasks["d"]
+    tip = rows[:, [columns.index("tip_x"), columns.index("tip_y")]]
+    err = np.hypot(tip[:, 0] - x, tip[:, 1] - y)
     np.testing.assert_allclose(rows[:, -1], err)

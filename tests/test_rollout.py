@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from armexp.agents.rollout import episode_metrics, rollout
+from armexp.agents.rollout import episode_metrics, rollout, settling_time
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
@@ -46,13 +46,29 @@ def test_metrics_of_a_scripted_reach(env: ReachEnv) -> None:
     assert m["rms_e1"] < 0.01  # the tuned loop tracks the planned velocities closely
     assert m["tip_rms_cm"] < 1.0
     assert m["return"] == pytest.approx(episode.episode_return)
-    # Convergence: after t_c the tracking error stays within the second half's largest value,
-    # and just before t_c it was outside.
+    # The episode starts with zero tracking error: nothing to converge from.
+    assert "convergence_time" not in m
+    assert np.isnan(settling_time(episode, env.n, 1.0))
+    assert m["time_at_limit"] == pytest.approx(rows[:, 14:16].max(axis=1).sum() * 1e-3)
+
+
+def test_settling_time_from_a_reference_offset(env: ReachEnv) -> None:
+    """On a run started 0.05 rad from the reference, ‖e1‖ stays within 2 % of ‖e1(0)‖ from the
+    settling time to the end of the window, and was outside just before it."""
+    policy = Constant([0.5, -1.0])
+    options = {"target": (-1.0, -1.0), "reference_offset": [0.05, 0.05]}
+    episode = rollout(env, policy, options, seed=0, max_steps=34)
+    assert episode.steps == 34
+    rows = episode.rows
     e1 = np.hypot(rows[:, 1] - rows[:, 3], rows[:, 2] - rows[:, 4])
-    ball = e1[len(e1) // 2 :].max()
-    k = int(np.searchsorted(rows[:, 0], m["convergence_time"]))
-    assert 0 < m["convergence_time"] <= rows[len(rows) // 2, 0]
-    assert e1[k:].max() <= ball and e1[k - 1] > ball
+    assert e1[0] == pytest.approx(0.05 * np.sqrt(2))
+    tc = settling_time(episode, env.n, 1.0)
+    assert 0.0 < tc < 1.0
+    k = int(np.searchsorted(rows[:, 0], tc))
+    inside = rows[:, 0] < 1.0
+    assert e1[k:][inside[k:]].max() <= 0.02 * e1[0] < e1[k - 1]
+    # A window longer than the run cannot be judged settled.
+    assert settling_time(episode, env.n, 2.0) == np.inf
 
 
 def test_metrics_of_a_miss(env: ReachEnv) -> None:
@@ -72,7 +88,7 @@ def test_reach_in_the_last_controller_step_still_has_a_target_time() -> None:
     from armexp.agents.rollout import Episode
 
     t = np.arange(60) * 1e-3
-    rows = np.zeros((60, 15))
+    rows = np.zeros((60, 17))
     rows[:, 0] = t
     rows[:, -1] = 0.05  # logged at each step's start: never inside the 4 cm threshold
     episode = Episode("reached", 2, 200.0, 0.039, np.zeros(2), rows)

@@ -37,6 +37,7 @@ def test_joblib_sweep_of_4_jobs_on_2_workers_loses_nothing(tmp_path: Path) -> No
             "-m",
             "seed=0,1,2,3",
             "scenario.duration=0.5",
+            "robot.torque_limit=null",
             "hydra/launcher=joblib",
             "hydra.launcher.n_jobs=2",
             f"tracking.runs_dir={runs}",

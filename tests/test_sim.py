@@ -85,6 +85,7 @@ def test_compiled_core_equals_numpy_reference() -> None:
             q0=q0 + 0.05,
             qd0=q0,
             seed=5,
+            reference="hold",
         )
         states = []
         for k in range(1000):
@@ -112,7 +113,9 @@ def test_seed_determinism_and_chunking() -> None:
     cmds = _commands(np.random.default_rng(2), np.array([0.1, 0.4]), 600)
 
     def run(seed: int, chunk: int) -> np.ndarray:
-        sim = Simulator(plant, "subsystem_adaptive", PAPER, q0=[0.1, 1.0], seed=seed)
+        sim = Simulator(
+            plant, "subsystem_adaptive", PAPER, q0=[0.1, 1.0], seed=seed, reference="hold"
+        )
         out = []
         for k in range(0, 600, chunk):
             rows = sim.advance(cmds[k], chunk, log=True)
@@ -124,12 +127,12 @@ def test_seed_determinism_and_chunking() -> None:
     assert np.array_equal(a, b)
     c = run(4, 30)
     assert not np.array_equal(a, c)
-    one = Simulator(plant, "subsystem_adaptive", PAPER, q0=[0.1, 1.0], seed=3)
+    one = Simulator(plant, "subsystem_adaptive", PAPER, q0=[0.1, 1.0], seed=3, reference="hold")
     for k in range(600):  # the same commands, one controller step per call
         one.advance(cmds[k - k % 30], 1)
     last = a[-1]
     stepped = np.concatenate([one.q, one.q_d, one.dq])
-    chunked = Simulator(plant, "subsystem_adaptive", PAPER, q0=[0.1, 1.0], seed=3)
+    chunked = Simulator(plant, "subsystem_adaptive", PAPER, q0=[0.1, 1.0], seed=3, reference="hold")
     for k in range(0, 600, 30):
         chunked.advance(cmds[k], 30)
     assert np.array_equal(np.concatenate([chunked.q, chunked.q_d, chunked.dq]), stepped)

@@ -88,13 +88,33 @@ def test_compiled_matches_reference(arm: ArmModel, unc: Uncertainty, controller:
     qd0 = np.linspace(0.4, -0.3, n)
     q0 = qd0 + np.linspace(0.05, -0.04, n)
     commands = switching_commands(n, 1000, seed=n)
-    sim = Simulator(plant, controller, gains, q0=q0, qd0=qd0, seed=5)
+    sim = Simulator(plant, controller, gains, q0=q0, qd0=qd0, seed=5, reference="hold")
     got = compiled_states(sim, commands)
     kind = ADAPTIVE if controller == "subsystem_adaptive" else PID
     want = reference.simulate(plant, kind, gains, q0, qd0, commands, 5)
     assert np.isfinite(want).all()
     assert np.abs(got - want).max() < 1e-9
     assert sim.step_index == 1000 and sim.time == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(("arm", "unc", "controller"), CASES)
+def test_compiled_ramp_matches_reference(arm: ArmModel, unc: Uncertainty, controller: str) -> None:
+    """The ramped reference (one command per 30-step call) against the numpy reference."""
+    n = arm.n
+    plant = Plant.build(arm, unc, torque_limit=np.full(n, 60.0))
+    gains = controller_gains(controller, n)
+    qd0 = np.linspace(0.4, -0.3, n)
+    q0 = qd0 + np.linspace(0.05, -0.04, n)
+    blocks = switching_commands(n, 1200, seed=n)[::HOLD]
+    sim = Simulator(plant, controller, gains, q0=q0, qd0=qd0, seed=5)
+    got = []
+    for cmd in blocks:
+        sim.advance(cmd, HOLD)
+        got.append(sim.state.copy())
+    kind = ADAPTIVE if controller == "subsystem_adaptive" else PID
+    want = reference.simulate(plant, kind, gains, q0, qd0, blocks, 5, hold=HOLD, ramp=True)
+    assert np.isfinite(want).all()
+    assert np.abs(np.array(got) - want[HOLD - 1 :: HOLD]).max() < 1e-9
 
 
 def test_two_link_fast_path_matches_generic_path() -> None:
@@ -109,7 +129,7 @@ def test_two_link_fast_path_matches_generic_path() -> None:
         state = np.zeros(9)
         state[:2] = [0.35, -0.25]
         state[4:6] = [0.3, -0.2]
-        trace = np.empty((40 * HOLD, 2))
+        trace = np.empty((40 * HOLD, 4))
         done, diverged = run(
             state,
             commands,
@@ -121,12 +141,15 @@ def test_two_link_fast_path_matches_generic_path() -> None:
             plant.dt,
             key,
             make_work(2),
-            np.zeros((0, 14)),
+            np.zeros((0, 16)),
             trace,
+            True,
         )
         assert (done, diverged) == (40 * HOLD, False)
         traces.append(trace)
-    assert np.abs(traces[0] - traces[1]).max() < 1e-12
+    assert np.abs(traces[0][:, :2] - traces[1][:, :2]).max() < 1e-12  # e1
+    tau = np.abs(traces[0][:, 2:]).max()
+    assert np.abs(traces[0][:, 2:] - traces[1][:, 2:]).max() < 1e-12 * tau  # applied τ
 
 
 def test_rows_beyond_the_cache_use_libm() -> None:
@@ -149,7 +172,8 @@ def test_rows_beyond_the_cache_use_libm() -> None:
             plant.dt,
             key,
             make_work(2, cap),
-            np.zeros((0, 14)),
+            np.zeros((0, 16)),
+            True,
         )
         finals.append(state)
     assert np.abs(finals[0] - finals[1]).max() < 1e-12
@@ -236,8 +260,9 @@ def test_seeds_chunking_and_reset() -> None:
     assert np.array_equal(run(4, sim=sim), a)
 
     # 30-step calls and one long call give bit-identical trajectories (anchoring crosses chunks).
-    one = Simulator(plant, "subsystem_adaptive", gains, q0=[0.3, 0.1], qd0=[0.25, 0.0], seed=4)
-    many = Simulator(plant, "subsystem_adaptive", gains, q0=[0.3, 0.1], qd0=[0.25, 0.0], seed=4)
+    start = {"q0": [0.3, 0.1], "qd0": [0.25, 0.0], "seed": 4, "reference": "hold"}
+    one = Simulator(plant, "subsystem_adaptive", gains, **start)  # type: ignore[arg-type]
+    many = Simulator(plant, "subsystem_adaptive", gains, **start)  # type: ignore[arg-type]
     long_rows = one.advance([0.07, -0.3], 3000, log=True)
     short_rows = np.concatenate([many.advance([0.07, -0.3], HOLD, log=True) for _ in range(100)])
     assert np.array_equal(long_rows, short_rows)
@@ -258,10 +283,11 @@ def test_simulate_batch_equals_sequential_runs() -> None:
     offset = rng.uniform(-0.05, 0.05, (n_scen, n))
     commands = rng.uniform(-0.4, 0.4, (n_scen, n_cmd, n))
     seeds = np.array([3, 1, 4])
-    err = np.zeros((3, n_scen, n_cmd * HOLD, n))
+    trace = np.zeros((3, n_scen, n_cmd * HOLD, 2 * n))
     done = simulate_batch(
-        ADAPTIVE, gains, q0, offset, commands, HOLD, plant.packed(), plant.dt, seeds, err
+        ADAPTIVE, gains, q0, offset, commands, HOLD, plant.packed(), plant.dt, seeds, trace, True
     )
+    err = trace[..., :n]
     total = n_cmd * HOLD
     assert (done[:2] == total).all()
     for c in range(2):
@@ -274,11 +300,16 @@ def test_simulate_batch_equals_sequential_runs() -> None:
                 qd0=q0[s],
                 seed=int(seeds[s]),
             )
-            trace = []
+            parts = []
             for cmd in commands[s]:
                 rows = sim.advance(cmd, HOLD, log=True)
-                trace.append(rows[:, 1 : 1 + n] - rows[:, 1 + n : 1 + 2 * n])
-            assert np.abs(np.concatenate(trace) - err[c, s]).max() <= 1e-12
+                parts.append(
+                    np.hstack(
+                        [rows[:, 1 : 1 + n] - rows[:, 1 + n : 1 + 2 * n],
+                         rows[:, 1 + 4 * n : 1 + 5 * n]]
+                    )
+                )  # fmt: skip
+            assert np.abs(np.concatenate(parts) - trace[c, s]).max() <= 1e-12
     # The absurd candidate diverges: a NaN tail, fewer steps completed, no exception.
     assert (done[2] < total).all()
     for s in range(n_scen):
@@ -297,12 +328,13 @@ def test_logged_rows_layout() -> None:
             q0=np.full(n, 0.2),
             qd0=np.full(n, 0.1),
             seed=2,
+            reference="hold",
         )
         cmd = np.linspace(0.1, -0.2, n)
         q_before, qd_before, dq_before = sim.q.copy(), sim.q_d.copy(), sim.dq.copy()
         rows = sim.advance(cmd, 1, log=True)
         columns = trajectory_columns(n)
-        assert rows is not None and rows.shape == (1, len(columns)) == (1, 4 + 5 * n)
+        assert rows is not None and rows.shape == (1, len(columns)) == (1, 4 + 6 * n)
         row = dict(zip(columns, rows[0], strict=True))
         assert row["t"] == 0.0
         for i in range(n):
@@ -311,6 +343,7 @@ def test_logged_rows_layout() -> None:
             assert row[f"dq_{i + 1}"] == dq_before[i]
             assert row[f"dq_d_{i + 1}"] == cmd[i]
             assert row[f"tau_{i + 1}"] == sim.tau[i]
+            assert row[f"sat_{i + 1}"] == 0.0  # no torque limit
         assert np.any(sim.tau != 0.0)
         assert row["rho_hat"] == 0.0
         tip = tip_position(q_before, arm.lengths_array)
@@ -320,4 +353,5 @@ def test_logged_rows_layout() -> None:
         np.testing.assert_array_equal(more[:, 0], np.arange(1, 6) * plant.dt)
         assert more[-1, 1 + 4 * n] == sim.tau[0]
         x, y = tip_position(more[-1, 1 : 1 + n], arm.lengths_array)
-        assert abs(more[-1, -2] - x) <= 1e-15 and abs(more[-1, -1] - y) <= 1e-15
+        tip_x, tip_y = columns.index("tip_x"), columns.index("tip_y")
+        assert abs(more[-1, tip_x] - x) <= 1e-15 and abs(more[-1, tip_y] - y) <= 1e-15

@@ -214,14 +214,22 @@ def _cross_checks(cfg: DictConfig) -> None:
         for key in ("joint", "of"):
             if not 1 <= term[key] <= n:
                 raise fail(f"robot.uncertainty.f_terms[{i}].{key}", term[key], f"joints are 1..{n}")
+    if robot.torque_limit is not None:
+        _need_len("robot.torque_limit", robot.torque_limit, n)
+        for j, v in enumerate(robot.torque_limit):
+            if not v > 0:
+                raise fail(f"robot.torque_limit[{j}]", v, "it must be > 0 (null for none)")
+    evaluation = cfg.get("eval")
+    if evaluation is not None:
+        span = min(hi - lo for lo, hi in zip(robot.joint_lower, robot.joint_upper, strict=True))
+        if evaluation.initial_offset > span:
+            raise fail(
+                "eval.initial_offset", evaluation.initial_offset,
+                f"it must not exceed the smallest joint range ({span:.4g} rad)",
+            )  # fmt: skip
     ctrl = cfg.get("controller")
     if ctrl is None or OmegaConf.is_missing(cfg, "controller"):
         return
-    if ctrl.torque_limit is not None:
-        _need_len("controller.torque_limit", ctrl.torque_limit, n)
-        for j, v in enumerate(ctrl.torque_limit):
-            if not v > 0:
-                raise fail(f"controller.torque_limit[{j}]", v, "it must be > 0 (null for none)")
     if ctrl.name == "pid":
         for key in ("kp", "ki", "kd"):
             _need_len(f"controller.gains.{key}", ctrl.gains[key], n)

@@ -46,7 +46,7 @@ def between(lo: float, hi: float, *, lo_open: bool = False) -> Check:
     )
 
 
-def at_least(lo: int) -> Check:
+def at_least(lo: float) -> Check:
     return Check(lambda v: _num(v) and v >= lo, f"it must be ≥ {lo}")
 
 

@@ -60,6 +60,8 @@ class RobotConfig:
     joint_lower: list[float] = field(default_factory=list)
     joint_upper: list[float] = field(default_factory=list)
     velocity_bound: list[float] = checked(factory=list, check=each(_pos))
+    #: Per-joint actuator limit |τ_j| ≤ torque_limit[j] (N·m) for every controller; null: none.
+    torque_limit: list[float] | None = None
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
 
 
@@ -88,7 +90,6 @@ class PIDGains:
 class ControllerConfig:
     name: str = MISSING
     dt: float = checked(0.001, _pos)
-    torque_limit: list[float] | None = None
     #: CSO search box per gain: ``{gain: [lower, upper]}`` (PID gains per joint: kp_1, …).
     bounds: dict[str, list[float]] = field(default_factory=dict)
 
@@ -139,6 +140,16 @@ class ObjectiveConfig:
     rise_high: float = checked(0.9, between(0.0, 1.0, lo_open=True))
     rise_low: float = checked(0.1, between(0.0, 1.0, lo_open=True))
     steady_window: float = checked(0.2, between(0.0, 1.0, lo_open=True))
+    #: Share of the scenarios that start at the straight arm (joints 2..n at 0).
+    straight_share: float = checked(0.25, between(0.0, 1.0))
+    #: Stability constraint: the sampled loop with every gain × gain_margin is stable at every
+    #: pose of a grid with stability_points per joint 2..n (straight arm included); null: off.
+    gain_margin: float | None = checked(1.25, or_null(at_least(1.0)))
+    stability_points: int = checked(9, at_least(2))
+    #: Effort penalty: effort_weight × peak |τ|/limit + saturation_weight × share of time at
+    #: the torque limit, averaged over the scenarios (0 without torque limits).
+    effort_weight: float = checked(0.1, nonnegative())
+    saturation_weight: float = checked(1.0, nonnegative())
 
 
 @dataclass
@@ -149,6 +160,9 @@ class TunerConfig:
     pa: float = checked(0.25, between(0.0, 1.0))
     beta: float = checked(1.5, between(0.0, 2.0, lo_open=True))
     step_scale: float = checked(0.01, _pos)
+    #: Abandonment rule (DESIGN §5): "worst" discards the P_a share of the worst nests
+    #: (Algorithm 2 line 9); "per_component" rebuilds each component with probability P_a.
+    abandon: str = checked("per_component", one_of("worst", "per_component"))
     seed: int = checked(0, at_least(0))
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
@@ -230,6 +244,9 @@ class EnvConfig:
     min_target_distance: float = checked(0.2, nonnegative())
     max_target_time: float = checked(12.0, _pos)
     workspace_cells: int = checked(40_000, at_least(100))
+    #: Reference between actions: q̇_d ramps from the previous action to the new one across the
+    #: action period (``ramp``), or jumps to it (``hold``). Also used by `tune` and `simulate`.
+    reference: str = checked("ramp", one_of("ramp", "hold"))
 
 
 @dataclass
@@ -317,7 +334,7 @@ class EvalStageConfig:
     #: The train run whose policy is evaluated (None: the latest FINISHED one that matches).
     train_run: str | None = None
     #: PID baseline gains: ``tuned`` (``pid_tune_run`` or the latest PID tune run) or ``config``
-    #: (``conf/controller/gains/pid_default.yaml``).
+    #: (``conf/per_robot/pid_<robot>.yaml`` for the policy's robot).
     pid_gains: str = checked("tuned", one_of("tuned", "config"))
     pid_tune_run: str | None = None
     controllers: list[str] = field(default_factory=lambda: ["subsystem_adaptive", "pid"])
@@ -325,6 +342,11 @@ class EvalStageConfig:
     paper_tasks: bool = True
     random_trajectories: bool = False
     deterministic: bool = True
+    #: Convergence (Table III's last column): each paper task is run again with the reference
+    #: started this far (rad, every joint) from the arm, and the 2 % settling time of ‖e1‖
+    #: within the first ``convergence_window`` s of that run is reported.
+    initial_offset: float = checked(0.05, _pos)
+    convergence_window: float = checked(1.0, _pos)
 
 
 @dataclass

@@ -68,6 +68,7 @@ def settings_from_config(
         min_target_distance=float(e.min_target_distance),
         max_target_time=float(e.max_target_time),
         workspace_cells=int(e.workspace_cells),
+        reference=str(e.reference),
     )
 
 

@@ -95,6 +95,7 @@ def env_step(
     high: np.ndarray,
     obs: np.ndarray,
     log: np.ndarray,
+    ramp: bool,
 ) -> tuple[float, int, int, float]:
     """One environment step. Updates ``tip`` (x, y) in place and fills ``obs``.
 
@@ -108,7 +109,7 @@ def env_step(
     for j in range(n):
         dqd[j] = min(max(float(action[j]), -1.0), 1.0) * bound[j]
     prev_error = math.hypot(tip[0] - target[0], tip[1] - target[1])
-    done = advance(state, dqd, k0, hold, kind, gains, model, dt, key, work, log)
+    done = advance(state, dqd, k0, hold, kind, gains, model, dt, key, work, log, ramp)
     q = state[:n]
     status = RUNNING
     reward = 0.0

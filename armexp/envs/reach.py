@@ -27,7 +27,7 @@ from armexp.envs.workspace import (
     joint_grid,
     shortest_path,
 )
-from armexp.sim.core import Simulator
+from armexp.sim.core import Simulator, log_width, trajectory_columns
 from armexp.sim.model import Plant
 
 #: Why an episode ended (``info["reason"]``), in `armexp.envs.kernel` status order; "" while it
@@ -64,6 +64,8 @@ class ReachSettings:
     min_target_distance: float = 0.2
     max_target_time: float = 12.0
     workspace_cells: int = 40_000
+    #: The reference generator between actions (`armexp.sim.core.REFERENCES`).
+    reference: str = "ramp"
     #: A training aid, not Table I (0): a step also collides when the tip's path comes within
     #: this distance (m) of an obstacle's surface. Observations and targets are unchanged.
     collision_clearance: float = 0.0
@@ -118,8 +120,9 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Action Space
     ``Box(-1, 1, (n,), float32)``: the joint velocity reference q̇_d (eq. 7a) as a fraction of
     the velocity bounds of Table II (q̇1 ∈ [−0.1, 0.1], q̇2 ∈ [−0.4, 0.4] rad/s for the paper
-    arm). It is held for one action period (30 ms) while the controller tracks q_d = ∫q̇_d at
-    1 kHz.
+    arm). Across the action period (30 ms) the reference q̇_d ramps linearly from the previous
+    action to this one (``reference="hold"``: it jumps to it), while the controller tracks
+    q_d = ∫q̇_d at 1 kHz.
 
     ## Observation Space
     ``Box((6 + n + m,), float32)`` as eq. 5a (eq. 4a when m = 0):
@@ -140,6 +143,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     target is drawn uniformly from the precomputed collision-free reachable workspace
     (`armexp.envs.workspace`), or fixed with ``reset(options={"target": (x, y)})`` or
     ``reset(options={"task": "a"})`` for the tasks of ``tasks=paper_four``.
+    ``reset(options={"reference_offset": [δ1, …, δn]})`` starts the reference at q_d(0) = q0 + δ
+    instead of q0 (a defined perturbation for measuring convergence, DESIGN §8).
 
     ## Episode End
     Terminated on reach, collision, joint limit or divergence; truncated after ``max_steps``
@@ -176,7 +181,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._obstacles = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 3)
         self._collide = self._obstacles + np.array([0.0, 0.0, s.collision_clearance])
         self.workspace = s.workspace()
-        self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0)
+        self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0, reference=s.reference)
 
         reach = float(self._lengths.sum())
         far = reach + (float(np.hypot(*self._obstacles[:, :2].T).max()) if m else 0.0)
@@ -193,7 +198,9 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             [s.reach_threshold, s.reach_reward, s.boundary_penalty, s.collision_penalty,
              s.growth_penalty]
         )  # fmt: skip
-        self._log_width = 4 + 5 * n
+        self._log_width = log_width(n)
+        columns = trajectory_columns(n)
+        self._tip_columns = [columns.index("tip_x"), columns.index("tip_y")]
         self._no_log = np.zeros((0, self._log_width))
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
 
@@ -224,7 +231,10 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         else:
             self.target = self.workspace.sample(self.np_random)
         # The τ_d draws of the episode follow the env's seeded generator.
-        self.sim.reset(self.settings.q0, seed=int(self.np_random.integers(2**31)))
+        q0 = self.settings.q0
+        offset = options.get("reference_offset")
+        qd0 = None if offset is None else q0 + np.broadcast_to(np.asarray(offset, float), q0.shape)
+        self.sim.reset(q0, seed=int(self.np_random.integers(2**31)), qd0=qd0)
         self.steps = 0
         self.reason = ""
         self.tip = np.array(self.sim.tip())
@@ -243,7 +253,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             sim.state, sim._work, sim._model, sim.gains, sim.kind, sim.plant.dt, sim._key,
             sim.step_index, self._hold, np.asarray(action, dtype=np.float64), self._bound,
             self._lower, self._upper, self._obstacles, self._collide, self.target, self.tip,
-            self._params, self._obs_low, self._obs_high, obs, log,
+            self._params, self._obs_low, self._obs_high, obs, log, sim.ramp,
         )  # fmt: skip
         sim.step_index += done
         if done < self._hold:
@@ -302,7 +312,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         if not self.record:
             raise RuntimeError("trajectory() needs ReachEnv(record=True).")
         if not self._rows:
-            return np.zeros((0, 5 + 5 * self.n))
+            return np.zeros((0, self._log_width + 1))
         rows = np.concatenate(self._rows)
-        err = np.hypot(rows[:, -2] - self.target[0], rows[:, -1] - self.target[1])
+        tip = rows[:, self._tip_columns]
+        err = np.hypot(tip[:, 0] - self.target[0], tip[:, 1] - self.target[1])
         return np.column_stack([rows, err])

@@ -5,7 +5,9 @@ Per controller step k (t_k = k·dt):
 1. u ~ U(0,1) for τ_d is drawn for this period (`armexp.sim.noise`).
 2. The controller computes τ from the measured state and M(q); τ is held over the step.
 3. The plant q̈ = M⁻¹(τ − C q̇ − G) + F + τ_d(t) (eq. 2) advances by classic RK4.
-4. q_d integrates the held q̇_d exactly; ρ̂ (eq. 12) and the PID integral advance by explicit Euler.
+4. q_d integrates q̇_d exactly; q̇_d comes from the reference generator (`_reference`: a ramp
+   from the previous command to the new one across the command's period, or a hold). ρ̂ (eq. 12)
+   and the PID integral (with anti-windup at the torque limit) advance by explicit Euler.
 
 The closed-loop state is one float vector ``[q, q̇, q_d, ∫e1 dt, ρ̂]`` (length 4n + 1).
 `advance` runs k steps in one call (one environment step is 30 of them); `simulate_batch` runs
@@ -36,7 +38,7 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-from armexp.sim.controllers import KINDS, control
+from armexp.sim.controllers import KINDS, PID, control
 from armexp.sim.dynamics import absolute_angles, cholesky_solve, mass_and_bias_cs, tip_position
 from armexp.sim.model import SOURCE_Q, Array, Plant
 from armexp.sim.noise import stream_key, uniform
@@ -72,8 +74,17 @@ _I5040 = 1.0 / 5040.0
 _ROW = 11
 
 
+#: Reference generators (DESIGN §4): q̇_d ramps linearly from the previous command to the new
+#: one across each command's period (first-order hold), or jumps to it (zero-order hold).
+REFERENCES = ("ramp", "hold")
+
+
 def trajectory_columns(n: int) -> list[str]:
-    """Column names of a logged trajectory (the `trajectory.parquet` contract)."""
+    """Column names of a logged trajectory (the `trajectory.parquet` contract).
+
+    ``tau_<j>`` is the torque the plant received (after saturation); ``sat_<j>`` is 1.0 when it
+    was at the torque limit during that step.
+    """
     j = range(1, n + 1)
     return (
         ["t"]
@@ -83,27 +94,35 @@ def trajectory_columns(n: int) -> list[str]:
         + [f"dq_d_{i}" for i in j]
         + [f"tau_{i}" for i in j]
         + ["rho_hat", "tip_x", "tip_y"]
+        + [f"sat_{i}" for i in j]
     )
+
+
+def log_width(n: int) -> int:
+    """Number of `trajectory_columns`."""
+    return 4 + 6 * n
 
 
 # --- work buffer -------------------------------------------------------------------------------
 # One flat float64 array (a single argument keeps the dispatch from Python cheap):
-#   [0] n, [1] cap (cached F rows), τ of the last step (n), the link slots (3 × n: φ₀, cos, sin),
+#   [0] n, [1] cap (cached F rows), τ of the last step (n), the reference (3 × n: the previous
+#   command, q̇_d at the current step's start and end), the link slots (3 × n: φ₀, cos, sin),
 #   the τ_d slots (3 × n), the F-row slots (cap × 11: φ₀, cos, sin, series), the two-link row
 #   plan (cap × 8), then scratch (2n² + 24n). The compiled code works on 2-D views of the blocks,
 #   indexed from 0, so no index needs numba's negative-index wraparound.
 
 
 @njit(cache=True)
-def _offsets(n: int, cap: int) -> tuple[int, int, int, int, int, int]:
-    """Start of τ, link slots, τ_d slots, F-row slots, row plan, scratch."""
+def _offsets(n: int, cap: int) -> tuple[int, int, int, int, int, int, int]:
+    """Start of τ, reference, link slots, τ_d slots, F-row slots, row plan, scratch."""
     tau = 2
-    links = tau + n
+    ref = tau + n
+    links = ref + 3 * n
     dist = links + 3 * n
     rows = dist + 3 * n
     plan = rows + _ROW * cap
     scratch = plan + 8 * cap
-    return tau, links, dist, rows, plan, scratch
+    return tau, ref, links, dist, rows, plan, scratch
 
 
 @njit(cache=True)
@@ -112,7 +131,7 @@ def make_work(n: int, max_terms: int = MAX_TERMS) -> Array:
 
     ``max_terms`` F-term rows get cached angles; further rows are evaluated by libm.
     """
-    work = np.zeros(_offsets(n, max_terms)[5] + 2 * n * n + 24 * n)
+    work = np.zeros(_offsets(n, max_terms)[6] + 2 * n * n + 24 * n)
     work[0] = n
     work[1] = max_terms
     clear_cache(work)
@@ -124,7 +143,7 @@ def clear_cache(work: Array) -> None:
     """Forget every cached angle: the next step evaluates all its slots by libm."""
     n = int(work[0])
     cap = int(work[1])
-    _, links, dist, rows, _, _ = _offsets(n, cap)
+    _, _, links, dist, rows, _, _ = _offsets(n, cap)
     for a in range(n):
         work[links + a] = np.nan
         work[dist + a] = np.nan
@@ -271,6 +290,55 @@ def _log_row(row: Array, t: float, state: Array, dqd: Array, n: int, lengths: Ar
     x, y = tip_position(state[0:n], lengths)
     row[2 + 5 * n] = x
     row[3 + 5 * n] = y
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _reference(
+    ramp: bool, cmd: Array, prev: Array, j: int, hold: int, now: Array, end: Array
+) -> None:
+    """q̇_d at the start (``now``) and end (``end``) of step j of a command held ``hold`` steps.
+
+    ramp: q̇_d moves linearly from ``prev`` to ``cmd`` across the hold, so q̈_d = Δcommand /
+    period; hold: q̇_d = ``cmd`` throughout. q_d integrates the segment exactly (trapezoid).
+    """
+    if ramp:
+        f0 = j / hold
+        f1 = (j + 1) / hold
+        for i in range(now.shape[0]):
+            d = cmd[i] - prev[i]
+            now[i] = prev[i] + d * f0
+            end[i] = prev[i] + d * f1
+    else:
+        for i in range(now.shape[0]):
+            now[i] = cmd[i]
+            end[i] = cmd[i]
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _integrate_reference(state: Array, now: Array, end: Array, h: float, n: int) -> None:
+    """q_d += ∫ q̇_d over the step (exact for the linear segment; h·q̇_d under a hold)."""
+    for i in range(n):
+        state[2 * n + i] += h * (0.5 * (now[i] + end[i]))
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _integrate_error(
+    kind: int, state: Array, e1: Array, tau: Array, tau_limit: Array, h: float, n: int
+) -> None:
+    """∫e1 dt by explicit Euler, with the PID's anti-windup: a joint whose torque is at the limit
+    does not integrate the error that would drive it further into saturation."""
+    for i in range(n):
+        if kind == PID and abs(tau[i]) >= tau_limit[i] and e1[i] * tau[i] < 0.0:
+            continue
+        state[3 * n + i] += h * e1[i]
+
+
+@njit(cache=True, inline="always")
+def _log_torque(row: Array, tau: Array, tau_limit: Array, n: int) -> None:
+    """The applied torque and the saturation flag of a logged step."""
+    for i in range(n):
+        row[1 + 4 * n + i] = tau[i]
+        row[4 + 5 * n + i] = 1.0 if abs(tau[i]) >= tau_limit[i] else 0.0
 
 
 @njit(cache=True)
@@ -488,13 +556,17 @@ def _run_two(
     work: Array,
     log: Array,
     trace: Array,
+    ramp: bool,
 ) -> tuple[int, bool]:
     """`_run` for n = 2, unrolled: the whole RK4 step lives in scalars."""
     n = 2
     weights, gcoef, lengths, f_terms, dist, tau_limit = model
     cap = int(work[1])
-    tb, lb, db, rb, pb, sb = _offsets(n, cap)
+    tb, fb, lb, db, rb, pb, sb = _offsets(n, cap)
     tau = work[tb : tb + n]
+    prev = work[fb : fb + n]
+    dqd = work[fb + n : fb + 2 * n]
+    dqd_end = work[fb + 2 * n : fb + 3 * n]
     links = work[lb : lb + 3 * n].reshape((3, n))
     dslots = work[db : db + 3 * n].reshape((3, n))
     rows = work[rb : rb + _ROW * cap].reshape((cap, _ROW))
@@ -526,10 +598,11 @@ def _run_two(
     tracing = trace.shape[0] > 0
     steps = 0
     for ci in range(commands.shape[0]):
-        dqd = commands[ci]
-        for _ in range(hold):
+        cmd = commands[ci]
+        for j in range(hold):
             k = k0 + steps
             t = k * dt
+            _reference(ramp, cmd, prev, j, hold, dqd, dqd_end)
             if record:
                 _log_row(log[steps], t, state, dqd, n, lengths)
             if tracing:
@@ -606,15 +679,15 @@ def _run_two(
             state[1] = q1
             state[2] = v0
             state[3] = v1
-            state[4] += h * dqd[0]
-            state[5] += h * dqd[1]
-            state[6] += h * e1[0]
-            state[7] += h * e1[1]
+            _integrate_reference(state, dqd, dqd_end, h, n)
+            _integrate_error(kind, state, e1, tau, tau_limit, h, n)
             rho = state[8] + h * rho_dot
             state[8] = rho
             if record:
-                log[steps, 9] = tau0
-                log[steps, 10] = tau1
+                _log_torque(log[steps], tau, tau_limit, n)
+            if tracing:
+                trace[steps, 2] = tau0
+                trace[steps, 3] = tau1
             steps += 1
             if not (
                 abs(v0) <= DIVERGENCE_SPEED
@@ -624,6 +697,8 @@ def _run_two(
                 and abs(rho) < np.inf
             ):
                 return steps, True
+        for i in range(n):
+            prev[i] = cmd[i]
     return steps, False
 
 
@@ -657,13 +732,17 @@ def _run_generic(
     work: Array,
     log: Array,
     trace: Array,
+    ramp: bool,
 ) -> tuple[int, bool]:
     """`_run` for any n: loops over links and a Cholesky solve."""
     n = state.shape[0] // 4
     weights, gcoef, lengths, f_terms, dist, tau_limit = model
     cap = int(work[1])
-    tb, lb, db, rb, _, o = _offsets(n, cap)
+    tb, fb, lb, db, rb, _, o = _offsets(n, cap)
     tau = work[tb : tb + n]
+    prev = work[fb : fb + n]
+    dqd = work[fb + n : fb + 2 * n]
+    dqd_end = work[fb + 2 * n : fb + 3 * n]
     phi0 = work[lb : lb + n]
     cth = work[lb + n : lb + 2 * n]
     sth = work[lb + 2 * n : lb + 3 * n]
@@ -695,10 +774,11 @@ def _run_generic(
     tracing = trace.shape[0] > 0
     steps = 0
     for ci in range(commands.shape[0]):
-        dqd = commands[ci]
-        for _ in range(hold):
+        cmd = commands[ci]
+        for j in range(hold):
             k = k0 + steps
             t = k * dt
+            _reference(ramp, cmd, prev, j, hold, dqd, dqd_end)
             if record:
                 _log_row(log[steps], t, state, dqd, n, lengths)
             if tracing:
@@ -756,15 +836,19 @@ def _run_generic(
             for i in range(n):
                 state[i] += h / 6.0 * sv[i]
                 state[n + i] += h / 6.0 * sa[i]
-                state[2 * n + i] += h * dqd[i]
-                state[3 * n + i] += h * e1[i]
+            _integrate_reference(state, dqd, dqd_end, h, n)
+            _integrate_error(kind, state, e1, tau, tau_limit, h, n)
             state[4 * n] += h * rho_dot
             if record:
+                _log_torque(log[steps], tau, tau_limit, n)
+            if tracing:
                 for i in range(n):
-                    log[steps, 1 + 4 * n + i] = tau[i]
+                    trace[steps, n + i] = tau[i]
             steps += 1
             if _diverged(state, n):
                 return steps, True
+        for i in range(n):
+            prev[i] = cmd[i]
     return steps, False
 
 
@@ -782,16 +866,23 @@ def _run(
     work: Array,
     log: Array,
     trace: Array,
+    ramp: bool,
 ) -> tuple[int, bool]:
-    """Run ``hold`` steps of each q̇_d row of ``commands`` from step index ``k0``.
+    """Run ``hold`` steps of each command row of ``commands`` from step index ``k0``.
 
-    Row s of ``log`` (when it has rows) gets the logged quantities of the s-th step, row s of
-    ``trace`` (when it has rows) gets e1 at that step's start. Returns (steps run, diverged);
+    The reference q̇_d follows each command through `_reference` (``ramp`` or hold), starting
+    from the previous command kept in ``work``. Row s of ``log`` (when it has rows) gets the
+    logged quantities of the s-th step, row s of ``trace`` (when it has rows) gets e1 at that
+    step's start and the torque applied during it (2n columns). Returns (steps run, diverged);
     a diverging step is run and counted, and ends the call.
     """
     if commands.shape[1] == 2:
-        return _run_two(state, commands, hold, k0, kind, gains, model, dt, key, work, log, trace)
-    return _run_generic(state, commands, hold, k0, kind, gains, model, dt, key, work, log, trace)
+        return _run_two(
+            state, commands, hold, k0, kind, gains, model, dt, key, work, log, trace, ramp
+        )
+    return _run_generic(
+        state, commands, hold, k0, kind, gains, model, dt, key, work, log, trace, ramp
+    )
 
 
 @njit(cache=True)
@@ -805,13 +896,14 @@ def step(
     dt: float,
     key: np.uint64,
     work: Array,
+    ramp: bool,
 ) -> None:
     """Advance the closed loop by one controller period (see the module docstring)."""
     n = dqd.shape[0]
     one = n // n  # a run-time 1: a literal would make numba compile `_run` again
     _run(
         state, dqd.reshape((1, n)), one, k, kind, gains, model, dt, key, work,
-        np.empty((0, 4 + 5 * n)), np.empty((0, n)),
+        np.empty((0, 4 + 6 * n)), np.empty((0, 2 * n)), ramp,
     )  # fmt: skip
 
 
@@ -828,18 +920,21 @@ def advance(
     key: np.uint64,
     work: Array,
     log: Array,
+    ramp: bool,
 ) -> int:
-    """Run ``n_steps`` controller steps from step index ``k0`` holding q̇_d = ``dqd``.
+    """Run ``n_steps`` controller steps from step index ``k0`` towards the command ``dqd``.
 
-    Returns the number of steps completed: ``n_steps`` unless the loop diverged. When ``log`` has
-    rows, row s receives (t, q, q_d, q̇, q̇_d, τ, ρ̂, tip) at the start of step s, with the τ
-    applied during that step. ``key`` is `stream_key`'s value as an ``np.uint64`` (a Python int
-    above 2⁶³ makes every call go through numba's slow type resolution).
+    With ``ramp`` q̇_d moves linearly from the previous command to ``dqd`` over the
+    ``n_steps``; otherwise it is held at ``dqd``. Returns the number of steps completed:
+    ``n_steps`` unless the loop diverged. When ``log`` has rows, row s receives the
+    `trajectory_columns` at the start of step s, with the τ applied during that step. ``key`` is
+    `stream_key`'s value as an ``np.uint64`` (a Python int above 2⁶³ makes every call go through
+    numba's slow type resolution).
     """
     n = dqd.shape[0]
     done, diverged = _run(
         state, dqd.reshape((1, n)), n_steps, k0, kind, gains, model, dt, key, work, log,
-        np.empty((0, n)),
+        np.empty((0, 2 * n)), ramp,
     )  # fmt: skip
     return done - 1 if diverged else n_steps
 
@@ -855,13 +950,15 @@ def simulate_batch(
     model: Model,
     dt: float,
     seeds: Array,
-    err: Array,
+    trace: Array,
+    ramp: bool,
 ) -> NDArray[np.int64]:
     """Closed-loop runs of every gain candidate on every reference scenario, in parallel.
 
-    gains (K, p); per scenario s: q_d(0) = q0[s], q(0) = q0[s] + offset[s], q̇(0) = 0, and q̇_d
-    steps through commands[s] (C, n), each held ``steps_per_command`` periods. Fills
-    err[K, S, C·steps_per_command, n] with e1 = q − q_d at the start of every step (NaN after a
+    gains (K, p); per scenario s: q_d(0) = q0[s], q(0) = q0[s] + offset[s], q̇(0) = q̇_d(0) = 0,
+    and q̇_d follows commands[s] (C, n) through the reference generator (``ramp`` or hold), each
+    command for ``steps_per_command`` periods. Fills trace[K, S, C·steps_per_command, 2n] with
+    e1 = q − q_d at the start of every step and the torque applied during it (NaN after a
     divergence) and returns the number of steps each run completed, shape (K, S).
     """
     n_cand = gains.shape[0]
@@ -881,11 +978,11 @@ def simulate_batch(
         first = 0 * n  # a run-time zero: a literal 0 would make numba compile `_run` again
         completed, _ = _run(
             state, commands[s], steps_per_command, first, kind, gains[c], model, dt, key, work,
-            np.empty((0, 4 + 5 * n)), err[c, s],
+            np.empty((0, 4 + 6 * n)), trace[c, s], ramp,
         )  # fmt: skip
         for kk in range(completed, total):
-            for i in range(n):
-                err[c, s, kk, i] = np.nan
+            for i in range(2 * n):
+                trace[c, s, kk, i] = np.nan
         done[c, s] = completed
     return done
 
@@ -905,23 +1002,29 @@ class Simulator:
         q0: Array | list[float],
         seed: int = 0,
         qd0: Array | list[float] | None = None,
+        reference: str = "ramp",
     ) -> None:
         if controller not in KINDS:
             raise ValueError(f"controller={controller!r} is unknown; choose one of {list(KINDS)}.")
+        if reference not in REFERENCES:
+            raise ValueError(f"reference={reference!r} is unknown; choose one of {REFERENCES}.")
         self.plant = plant
+        self.reference = reference
+        self.ramp = reference == "ramp"
         self.kind = KINDS[controller]
         self.gains = np.ascontiguousarray(gains, dtype=np.float64)
         self.n = plant.arm.n
         self._model = plant.packed()
         self._work = make_work(self.n)
-        self._no_log = np.zeros((0, 4 + 5 * self.n))
+        self._no_log = np.zeros((0, log_width(self.n)))
         self.state = np.zeros(4 * self.n + 1)
         self.reset(q0, seed=seed, qd0=qd0)
 
     def reset(
         self, q0: Array | list[float], seed: int = 0, qd0: Array | list[float] | None = None
     ) -> None:
-        """Put the arm at rest at ``q0`` with q_d(0) = ``qd0`` (default q0), ρ̂ = 0, t = 0."""
+        """Put the arm at rest at ``q0`` with q_d(0) = ``qd0`` (default q0), q̇_d = 0, ρ̂ = 0,
+        t = 0."""
         n = self.n
         self.state[:] = 0.0
         self.state[:n] = q0
@@ -931,17 +1034,18 @@ class Simulator:
         # An np.uint64, not the Python int numba returns: a Python int above 2⁶³ sends every
         # `advance` call through numba's slow type resolution (≈ 370 µs instead of ≈ 2 µs).
         self._key = np.uint64(stream_key(self.seed))
-        self._work[2 : 2 + n] = 0.0
+        self._work[2 : 2 + 4 * n] = 0.0  # last τ and the reference generator's state
         clear_cache(self._work)
         self.diverged = False
 
     def advance(self, dqd: Array | list[float], n_steps: int, log: bool = False) -> Array | None:
-        """Hold q̇_d for ``n_steps`` controller periods; returns the logged rows when ``log``.
+        """Command q̇_d = ``dqd`` for ``n_steps`` controller periods (ramped to it from the last
+        command, or held; see `advance`); returns the logged rows when ``log``.
 
         After a divergence the state is left as it was and `diverged` is set; further calls do
         nothing (a diverged episode is an outcome, not an exception).
         """
-        rows = np.zeros((n_steps, 4 + 5 * self.n)) if log else self._no_log
+        rows = np.zeros((n_steps, log_width(self.n))) if log else self._no_log
         if self.diverged:
             return rows[:0] if log else None
         cmd = np.ascontiguousarray(dqd, dtype=np.float64)
@@ -957,6 +1061,7 @@ class Simulator:
             self._key,
             self._work,
             rows,
+            self.ramp,
         )
         self.step_index += done
         if done < n_steps:

@@ -7,7 +7,8 @@ Definitions (used by `armexp simulate` now and by evaluation's Table III later):
 * ``convergence_time``: earliest t after which ‖e1‖ stays within the band
   max(``band_fraction`` · ‖e1(0)‖, ``band_floor``) for the rest of the run (s).
 * ``tip_rms_cm`` / ``tip_max_cm``: distance between the tip at q and the tip at q_d (cm).
-* ``max_abs_tau_<j>``: max |τ_j| (N·m); ``final_e1``: ‖e1‖ at the end; ``final_rho_hat``.
+* ``max_abs_tau_<j>``: max |τ_j| (N·m) of the applied (saturated) torque; ``time_at_limit``:
+  seconds with some joint at its torque limit; ``final_e1``: ‖e1‖ at the end; ``final_rho_hat``.
 """
 
 from __future__ import annotations
@@ -33,6 +34,10 @@ def convergence_time(t: Array, err: Array, band: float) -> float:
         return float(t[0])
     last = outside[-1]
     return float(t[last + 1]) if last + 1 < t.size else float("inf")
+
+
+def _step(t: Array) -> float:
+    return float(t[1] - t[0]) if t.size > 1 else 0.0
 
 
 def tracking_metrics(
@@ -61,6 +66,7 @@ def tracking_metrics(
         "tip_max_cm": float(tip_err.max()),
         "final_e1": float(norm[-1]),
         "final_rho_hat": float(rows[-1, 1 + 5 * n]),
+        "time_at_limit": float(rows[:, 4 + 5 * n : 4 + 6 * n].max(axis=1).sum() * _step(t)),
     }
     for j in range(n):
         out[f"rms_e1_{j + 1}"] = float(np.sqrt(np.mean(e1[:, j] ** 2)))

@@ -86,11 +86,14 @@ def simulate(
     qd0: Array,
     commands: Array,
     seed: int,
+    hold: int = 1,
+    ramp: bool = False,
 ) -> Array:
-    """Run len(commands) controller steps, q̇_d = commands[k] at step k, from rest at q0.
+    """Run ``hold`` controller steps per row of ``commands`` from rest at q0, q̇_d(0) = 0.
 
-    Returns the state [q, q̇, q_d, ∫e1, ρ̂] after every step, shape (K, 4n + 1); rows after a
-    divergence are NaN.
+    q̇_d is the command (``ramp=False``) or moves linearly from the previous command to it over
+    the ``hold`` steps (``ramp=True``); q_d integrates it exactly. Returns the state
+    [q, q̇, q_d, ∫e1, ρ̂] after every step, shape (K, 4n + 1); rows after a divergence are NaN.
     """
     n = plant.arm.n
     h = plant.dt
@@ -99,11 +102,17 @@ def simulate(
     qd = np.array(qd0, dtype=float)
     integral = np.zeros(n)
     rho = 0.0
-    steps = len(commands)
+    cmds = np.asarray(commands, dtype=float)
+    prev = np.vstack([np.zeros((1, n)), cmds[:-1]])
+    frac = np.arange(hold + 1) / hold if ramp else np.ones(hold + 1)
+    # q̇_d at the start and the end of every step.
+    start = (prev[:, None] + (cmds - prev)[:, None] * frac[None, :-1, None]).reshape(-1, n)
+    end = (prev[:, None] + (cmds - prev)[:, None] * frac[None, 1:, None]).reshape(-1, n)
+    steps = start.shape[0]
     noise = uniform_numpy(seed, np.arange(steps), n)
     out = np.full((steps, 4 * n + 1), np.nan)
     for k in range(steps):
-        dqd = commands[k]
+        dqd = start[k]
         u = noise[k]
         t = k * h
         tau, rho_dot = control(plant, kind, gains, q, dq, qd, dqd, integral, rho)
@@ -117,8 +126,10 @@ def simulate(
         k4a = acceleration(plant, q + h * k3v, k4v, tau, t + h, u)
         q = q + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
         dq = dq + h / 6.0 * (k1a + 2 * k2a + 2 * k3a + k4a)
-        qd = qd + h * dqd
-        integral = integral + h * e1
+        qd = qd + h * 0.5 * (dqd + end[k])
+        # PID anti-windup: no integration that drives a saturated torque further out.
+        windup = (kind != ADAPTIVE) & (np.abs(tau) >= plant.torque_limit) & (e1 * tau < 0)
+        integral = integral + np.where(windup, 0.0, h * e1)
         rho = rho + h * rho_dot
         if not (np.isfinite(q).all() and np.isfinite(dq).all()) or np.abs(dq).max() > (
             DIVERGENCE_SPEED

@@ -12,6 +12,12 @@ Logged: per controller and task the metrics of `armexp.agents.rollout.episode_me
 trajectory of each paper task per controller as ``trajectories/<controller>/<task>.parquet``
 (the simulate stage's columns plus ``target_error``; random targets too with
 ``eval.random_trajectories=true``).
+
+Convergence (DESIGN §8): each paper task is run a second time for ``eval.convergence_window``
+seconds with the reference started ``eval.initial_offset`` rad from the arm on every joint;
+``<controller>.<task>.convergence_time`` is the 2 % settling time of ‖e1‖ on that run
+(`armexp.agents.rollout.settling_time`), and its trajectory is
+``trajectories/<controller>/<task>_offset.parquet``.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from armexp import tracking
 from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
-from armexp.agents.rollout import episode_metrics, rollout
+from armexp.agents.rollout import Episode, episode_metrics, rollout, settling_time
 from armexp.agents.sac import load_sac
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
@@ -55,11 +61,11 @@ def _train_run(cfg: DictConfig) -> Any:
 
 def _pid_gains(cfg: DictConfig, train_cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
     if cfg.eval.pid_gains == "config":
-        from armexp.config import config_dir
+        from armexp.config import compose_config
 
-        gains = OmegaConf.to_container(
-            OmegaConf.load(config_dir() / "controller" / "gains" / "pid_default.yaml")
-        )
+        robot = str(train_cfg.robot.name)
+        pid = compose_config(["controller=pid", f"robot={robot}"]).controller
+        gains = OmegaConf.to_container(pid.gains)
         assert isinstance(gains, dict)
         return {str(k): v for k, v in gains.items()}, {}
     run, gains = tracking.tuned_gains(
@@ -133,6 +139,17 @@ def run(cfg: DictConfig) -> dict[str, float]:
                     deterministic=bool(cfg.eval.deterministic),
                 )  # fmt: skip
                 metrics = episode_metrics(episode, n, lengths, threshold)
+                if not task.startswith("random_"):
+                    perturbed = _offset_run(cfg, env, policy, options, int(cfg.seed) + index)
+                    window = float(cfg.eval.convergence_window)
+                    metrics["convergence_time"] = settling_time(perturbed, n, window)
+                    tracking.log_dataframe(
+                        pd.DataFrame(
+                            perturbed.rows, columns=[*trajectory_columns(n), "target_error"]
+                        ),
+                        f"{task}_offset.parquet",
+                        f"trajectories/{label}",
+                    )
                 records.append(
                     {"controller": label, "task": task, "reason": episode.reason,
                      "target_x": episode.target[0], "target_y": episode.target[1], **metrics}
@@ -155,6 +172,20 @@ def run(cfg: DictConfig) -> dict[str, float]:
         return summary
 
 
+def _offset_run(
+    cfg: DictConfig, env: ReachEnv, policy: Any, options: dict[str, Any], seed: int
+) -> Episode:
+    """The task's episode with the reference started ``eval.initial_offset`` from the arm, for
+    the first ``eval.convergence_window`` seconds."""
+    window = float(cfg.eval.convergence_window)
+    steps = math.ceil(window / env.settings.action_period - 1e-9)
+    offset = [float(cfg.eval.initial_offset)] * env.n
+    return rollout(
+        env, policy, {**options, "reference_offset": offset}, seed=seed,
+        deterministic=bool(cfg.eval.deterministic), max_steps=steps,
+    )  # fmt: skip
+
+
 def _aggregate(label: str, table: pd.DataFrame) -> dict[str, float]:
     out: dict[str, float] = {}
     for group, rows in (("random", table[table.task.str.startswith("random_")]),
@@ -166,8 +197,11 @@ def _aggregate(label: str, table: pd.DataFrame) -> dict[str, float]:
         out[f"{label}.{group}.collision_rate"] = float(rows.collision.mean())
         out[f"{label}.{group}.episodes"] = float(len(rows))
         for key in ("target_time", "final_error_cm", "convergence_time"):
-            out[f"{label}.{group}.mean_{key}"] = float(won[key].mean()) if len(won) else math.nan
-        for key in ("rms_e1", "tip_rms_cm"):
+            if key in won:
+                out[f"{label}.{group}.mean_{key}"] = (
+                    float(won[key].mean()) if len(won) else math.nan
+                )
+        for key in ("rms_e1", "tip_rms_cm", "time_at_limit"):
             out[f"{label}.{group}.mean_{key}"] = float(rows[key].mean())
     return out
 

@@ -34,6 +34,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             q0=scenario.q0 + scenario.offset,
             qd0=scenario.q0,
             seed=int(cfg.seed),
+            reference=str(cfg.env.reference),
         )
         chunks = []
         start = time.perf_counter()

@@ -72,6 +72,8 @@ log = logging.getLogger(__name__)
 TUNE_RUN_TAG = "armexp.tune_run"
 GAINS_SOURCE_TAG = "armexp.gains_source"
 RESUMED_TAG = "armexp.resumed_from_step"
+#: The agent config group option (the report names the preset by it).
+AGENT_PRESET_TAG = "armexp.agent_preset"
 
 
 def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
@@ -86,6 +88,17 @@ def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str
     return gains, {GAINS_SOURCE_TAG: "tune", TUNE_RUN_TAG: run.info.run_id}
 
 
+def _agent_preset(cfg: DictConfig) -> str:
+    """The ``agent`` config group option this run composed (its name when run outside Hydra)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        choice = HydraConfig.get().runtime.choices.get("agent")
+        if choice:
+            return str(choice)
+    return str(cfg.agent.name)
+
+
 def step_budget(cfg: DictConfig) -> int:
     """Upper bound on environment steps: every episode at full length, or ``max_env_steps``."""
     bound = int(cfg.agent.episodes) * int(cfg.env.max_steps)
@@ -97,6 +110,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     if cfg.train.resume:
         return resume(cfg)
     gains, tags = controller_gains_for(cfg)
+    tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
     with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
         return _learn(cfg, gains, active.info.run_id, model_path=None, state={})

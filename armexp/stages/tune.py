@@ -3,8 +3,10 @@
 Logs to one MLflow run: the best objective per iteration (metric history ``best_objective``),
 evaluations, wall time, the objective of the paper's published gains and of the configured gains
 on the same scenarios, the winning gains as params (``tuned.<gain>``) and as ``gains.yaml``
-(config form, ready for ``controller.gains``), every candidate (``candidates.csv``) and a
-convergence figure (``convergence.png``).
+(config form, ready for ``controller.gains``), their constraint figures (``best_gain_margin``
+over the pose grid, ``best_peak_torque``, ``best_time_at_limit``), the gains that ended on a
+bound of the search box (tag ``armexp.gains_on_bound``), every candidate (``candidates.csv``)
+and a convergence figure (``convergence.png``).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from armexp.config import ConfigError
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, gain_mapping, gain_names, gain_vector
 from armexp.tune.cuckoo import CuckooResult, cuckoo_search
 from armexp.tune.objective import ObjectiveSettings, TuningObjective, make_scenarios
+from armexp.tune.stability import pose_grid
 
 FLUSH_EVERY = 25
 
@@ -49,16 +52,31 @@ def build_objective(cfg: DictConfig, kind: int | None = None) -> TuningObjective
     settings = ObjectiveSettings(**dict(cfg.tuner.objective))
     robot = cfg.robot
     plant = build_plant(cfg)
+    lower = np.asarray(list(robot.joint_lower), dtype=np.float64)
+    upper = np.asarray(list(robot.joint_upper), dtype=np.float64)
     scenarios = make_scenarios(
-        settings,
-        np.asarray(list(robot.joint_lower)),
-        np.asarray(list(robot.joint_upper)),
-        np.asarray(list(robot.velocity_bound)),
-        plant.dt,
+        settings, lower, upper, np.asarray(list(robot.velocity_bound)), plant.dt
     )
     return TuningObjective(
-        plant, controller_kind(cfg) if kind is None else kind, scenarios, settings
+        plant,
+        controller_kind(cfg) if kind is None else kind,
+        scenarios,
+        settings,
+        poses=pose_grid(lower, upper, settings.stability_points),
+        ramp=str(cfg.env.reference) == "ramp",
     )
+
+
+def on_bound(names: list[str], x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> list[str]:
+    """The gains within 0.1 % of the box width from a bound, as ``name=lower|upper``."""
+    tol = 1e-3 * (upper - lower)
+    out = []
+    for g, v, lo, hi, t in zip(names, x, lower, upper, tol, strict=True):
+        if v - lo <= t:
+            out.append(f"{g}=lower")
+        elif hi - v <= t:
+            out.append(f"{g}=upper")
+    return out
 
 
 def _convergence_figure(result: CuckooResult, reference: dict[str, float]) -> Any:
@@ -139,6 +157,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
                 pa=float(tuner.pa),
                 beta=float(tuner.beta),
                 step_scale=float(tuner.step_scale),
+                abandon=str(tuner.abandon),
                 seed=int(tuner.seed),
                 callback=on_iteration,
             )
@@ -150,7 +169,19 @@ def run(cfg: DictConfig) -> dict[str, float]:
             if bar is not None:
                 bar.close()
 
+        table = pd.DataFrame(result.evaluations, columns=names)
+        table.insert(0, "iteration", result.iterations)
+        table["objective"] = result.scores
+        tracking.log_dataframe(table, "candidates.csv")
+        if not np.isfinite(result.best_f):
+            raise ConfigError(
+                f"tune found no feasible gains for {cfg.controller.name}: all "
+                f"{result.n_evaluations} candidates in controller.bounds were unstable at some "
+                f"pose (tuner.objective.gain_margin={cfg.tuner.objective.gain_margin}) or "
+                "diverged; narrow the gains' upper bounds or raise the budget."
+            )
         crit = objective.criteria(result.best_x[None])
+        bound_hits = on_bound(names, result.best_x, lower, upper)
         # best_objective's last history point is the final value; not logged again here.
         metrics = {
             "n_evaluations": float(result.n_evaluations),
@@ -160,21 +191,26 @@ def run(cfg: DictConfig) -> dict[str, float]:
             "best_rise_time_s": float(crit.rise_time.mean()),
             "best_settling_time_s": float(crit.settling_time.mean()),
             "best_steady_state_error": float(crit.steady_state_error.mean()),
+            "best_gain_margin": objective.gain_margin(result.best_x),
+            "best_peak_torque": float(crit.peak_torque[0]),
+            "best_time_at_limit": float(crit.time_at_limit[0]),
+            "best_gains_on_bound": float(len(bound_hits)),
         }
         mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
+        mlflow.set_tag("armexp.gains_on_bound", ", ".join(bound_hits) or "none")
         mapping = gain_mapping(kind, result.best_x, n)
         mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, result.best_x, strict=True)})
         mlflow.log_text(yaml.safe_dump(mapping, sort_keys=False), "gains.yaml")
-        table = pd.DataFrame(result.evaluations, columns=names)
-        table.insert(0, "iteration", result.iterations)
-        table["objective"] = result.scores
-        tracking.log_dataframe(table, "candidates.csv")
         fig = _convergence_figure(result, reference)
         mlflow.log_figure(fig, "convergence.png")
 
         print(
             f"tune: run {active.info.run_id} | {cfg.controller.name} | best W {result.best_f:.4g} "
             f"(paper gains {reference['objective_paper_gains']:.4g}) | "
-            f"{result.n_evaluations} evaluations in {wall:.1f} s | gains {mapping}"
+            f"{result.n_evaluations} evaluations in {wall:.1f} s | gains {mapping} | "
+            f"gain margin {metrics['best_gain_margin']:.3g}, peak |tau| "
+            f"{metrics['best_peak_torque']:.4g} N.m, at the limit "
+            f"{100 * metrics['best_time_at_limit']:.2g} % of the time"
+            + (f" | on a bound: {', '.join(bound_hits)}" if bound_hits else "")
         )
         return {"best_objective": float(result.best_f), **metrics, **reference}

@@ -16,17 +16,29 @@ objective and keeps a proposal only where it is strictly better than the nest it
    ``sigma_u = (G(1+beta) sin(pi beta / 2) / (G((1+beta)/2) beta 2**((beta-1)/2)))**(1/beta)``
    (``G`` is the gamma function). The paper's ``0.01`` factor of eq. 16 is ``step_scale``.
 
-2. Abandonment (eq. 19, Algorithm 2 lines 9-12). Each component of each nest is discovered
-   by the host with probability ``pa`` and rebuilt by a biased random walk,
+2. Abandonment (eq. 19, Algorithm 2 lines 9-12), by one of two rules (``abandon``):
 
-   ``B_j(new) = B_j + r_j * (B_iota - B_kappa)``   (only on the discovered components),
+   * ``"per_component"`` (Yang's reference implementation): each component of each nest is
+     discovered by the host with probability ``pa`` and rebuilt by a biased random walk,
 
-   where ``r_j ~ U(0, 1)`` is one number per nest and ``iota``, ``kappa`` come from two
-   independent random permutations of the nests, as in Yang's reference implementation.
+     ``B_j(new) = B_j + r_j * (B_iota - B_kappa)``   (only on the discovered components),
+
+     where ``r_j ~ U(0, 1)`` is one number per nest and ``iota``, ``kappa`` come from two
+     independent random permutations of the nests. All ``n_nests`` proposals are evaluated
+     and kept only where strictly better (greedy), as in phase 1. (Yang's published MATLAB
+     code, and NiaPy after it, tests ``rand > pa``, i.e. rebuilds a component with
+     probability ``1 - pa``, with one ``r`` for all nests; the rate here is ``pa``, as the
+     text of the paper and DESIGN §5 have it.)
+   * ``"worst"`` (Algorithm 2 line 9, "discard P_a of the worst nests"): the
+     ``m = floor(pa * n_nests + 1/2)`` worst nests (at most ``n_nests - 1``: the best nest is
+     never abandoned) are discarded and replaced, unconditionally, by new nests built with the
+     same random walk applied to every component of the discarded nest. Only those ``m`` new
+     nests are evaluated.
 
 Proposals are clipped to the bounds before evaluation, so the objective never sees a point
 outside ``[lower, upper]``. One run therefore costs ``n_nests * (1 + 2 * n_iterations)``
-evaluations. NaN scores are ranked as ``+inf`` (never preferred to a finite score) but are
+evaluations with ``"per_component"`` and ``n_nests + n_iterations * (n_nests + m)`` with
+``"worst"``. NaN scores are ranked as ``+inf`` (never preferred to a finite score) but are
 recorded as returned. All random numbers are drawn in the same order whatever the objective
 returns and whether it is called in batches or per candidate, so a seed fixes the run.
 """
@@ -41,7 +53,10 @@ from typing import Any, NoReturn
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["CuckooResult", "cuckoo_search"]
+__all__ = ["ABANDON_RULES", "CuckooResult", "cuckoo_search", "n_abandoned"]
+
+#: The abandonment rules of phase 2 (DESIGN §5).
+ABANDON_RULES = ("worst", "per_component")
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -58,7 +73,8 @@ class CuckooResult:
         history: Best value after each iteration ``1..n_iterations``, shape
             ``(n_iterations,)``; non-increasing. Empty when ``n_iterations == 0``.
         n_evaluations: Number of candidates evaluated, ``n_nests * (1 + 2 * n_iterations)``
-            for a complete run.
+            for a complete run with ``abandon="per_component"``, ``n_nests + n_iterations *
+            (n_nests + n_abandoned(n_nests, pa))`` with ``abandon="worst"``.
         evaluations: Every evaluated candidate in evaluation order, shape
             ``(n_evaluations, d)``; all lie within the bounds.
         scores: The objective value of each candidate as returned (``inf``/NaN kept), shape
@@ -131,6 +147,12 @@ def _mantegna_sigma(beta: float) -> float:
     return float(max(num / den, 0.0) ** (1.0 / beta))
 
 
+def n_abandoned(n_nests: int, pa: float) -> int:
+    """Nests discarded per iteration by the ``"worst"`` rule: ``pa * n_nests`` rounded half up,
+    capped at ``n_nests - 1`` so the best nest always survives."""
+    return min(math.floor(pa * n_nests + 0.5), n_nests - 1)
+
+
 def cuckoo_search(
     objective: Objective,
     lower: ArrayLike,
@@ -143,6 +165,7 @@ def cuckoo_search(
     seed: int | None = 0,
     batch: bool = True,
     step_scale: float = 0.01,
+    abandon: str = "per_component",
     callback: Callback | None = None,
 ) -> CuckooResult:
     """Minimise ``objective`` over the box ``[lower, upper]`` by cuckoo search (Algorithm 2).
@@ -157,12 +180,17 @@ def cuckoo_search(
         upper: Upper bounds, same length as ``lower``, each strictly above its lower bound.
         n_nests: Population size (eta), at least 2 because eq. 19 mixes two nests.
         n_iterations: Number of iterations after the initial population, at least 0.
-        pa: Probability that a nest component is discovered and rebuilt, in ``[0, 1]``.
+        pa: Discovery probability, in ``[0, 1]``: the probability that a nest component is
+            rebuilt (``abandon="per_component"``) or the share of the nests, the worst ones,
+            that is discarded each iteration (``abandon="worst"``).
         beta: Lévy exponent of Mantegna's step, in ``(0, 2]``.
         seed: Seed of ``numpy.random.default_rng``; ``None`` draws fresh entropy.
         batch: Whether ``objective`` takes a batch of candidates or a single one. It does not
             change the result.
-        step_scale: Scale of the Lévy step (0.01 in eq. 16), positive.
+        step_scale: Scale of the Lévy step, positive: 0.01 in eq. 16; the ``cso_paper`` tuner
+            uses a larger one (docs/cso_quality.md).
+        abandon: The abandonment rule of phase 2, ``"per_component"`` or ``"worst"`` (see the
+            module docstring).
         callback: Called as ``callback(iteration, result_so_far)`` after each iteration
             ``1..n_iterations``; the partial result's arrays are read-only views.
 
@@ -201,6 +229,11 @@ def cuckoo_search(
     scale = _as_real("step_scale", step_scale)
     if not (scale > 0.0 and math.isfinite(scale)):
         _fail(f"step_scale={scale!r} is not allowed; it must be a finite number above 0.")
+    if not isinstance(abandon, str) or abandon not in ABANDON_RULES:
+        _fail(
+            f"abandon={abandon!r} is not a known rule; it must be one of "
+            f"{', '.join(ABANDON_RULES)}."
+        )
     if callback is not None and not callable(callback):
         _fail(f"callback={callback!r} is not callable; give a function or None.")
     if not callable(objective):
@@ -211,7 +244,8 @@ def cuckoo_search(
     sigma_u = _mantegna_sigma(beta_f)
     rng = np.random.default_rng(seed)
 
-    total = n * (1 + 2 * n_iter)
+    n_worst = n_abandoned(n, pa_f) if abandon == "worst" else n
+    total = n + n_iter * (n + n_worst)
     evaluations = np.empty((total, d), dtype=np.float64)
     scores = np.empty(total, dtype=np.float64)
     iterations = np.empty(total, dtype=np.int64)
@@ -221,23 +255,26 @@ def cuckoo_search(
     def evaluate(candidates: FloatArray, iteration: int) -> FloatArray:
         """Score ``candidates``, record them, and return NaN-free ranking keys."""
         nonlocal n_done
+        m = candidates.shape[0]
+        if m == 0:
+            return np.empty(0, dtype=np.float64)
         if batch:
             raw = objective(candidates.copy())
             try:
                 values = np.asarray(raw, dtype=np.float64).reshape(-1)
             except (TypeError, ValueError):
                 raise ValueError(
-                    f"objective returned {raw!r} for a batch of {n} candidates; it must return "
-                    f"{n} numbers."
+                    f"objective returned {raw!r} for a batch of {m} candidates; it must return "
+                    f"{m} numbers."
                 ) from None
-            if values.size != n:
+            if values.size != m:
                 _fail(
-                    f"objective returned {values.size} values for a batch of {n} candidates; "
-                    f"it must return exactly {n} (one per row), or use batch=False."
+                    f"objective returned {values.size} values for a batch of {m} candidates; "
+                    f"it must return exactly {m} (one per row), or use batch=False."
                 )
         else:
-            values = np.empty(n, dtype=np.float64)
-            for k in range(n):
+            values = np.empty(m, dtype=np.float64)
+            for k in range(m):
                 raw = objective(candidates[k].copy())
                 try:
                     one = np.asarray(raw, dtype=np.float64).reshape(-1)
@@ -249,7 +286,7 @@ def cuckoo_search(
                         "must return a single number."
                     )
                 values[k] = one[0]
-        stop = n_done + n
+        stop = n_done + m
         evaluations[n_done:stop] = candidates
         scores[n_done:stop] = values
         iterations[n_done:stop] = iteration
@@ -292,18 +329,29 @@ def cuckoo_search(
         nests[better] = proposal[better]
         keys[better] = new_keys[better]
 
-        # Abandonment of discovered components (eq. 19): a differential step between two
-        # randomly paired nests, applied only where the Bernoulli(pa) mask fires.
+        # Abandonment (eq. 19): a differential step between two randomly paired nests. The
+        # same draws are made under both rules, whatever the scores.
         discovered = rng.random((n, d)) < pa_f
         iota = rng.permutation(n)
         kappa = rng.permutation(n)
         r = rng.random((n, 1))
-        proposal = nests + (r * (nests[iota] - nests[kappa])) * discovered
-        np.clip(proposal, lo, hi, out=proposal)
-        new_keys = evaluate(proposal, it)
-        better = new_keys < keys
-        nests[better] = proposal[better]
-        keys[better] = new_keys[better]
+        walk = r * (nests[iota] - nests[kappa])
+        if abandon == "per_component":
+            # Only the discovered components move; greedy replacement.
+            proposal = nests + walk * discovered
+            np.clip(proposal, lo, hi, out=proposal)
+            new_keys = evaluate(proposal, it)
+            better = new_keys < keys
+            nests[better] = proposal[better]
+            keys[better] = new_keys[better]
+        else:
+            # The n_worst worst nests (ties: the later index is the worse) are discarded and
+            # rebuilt by the walk on every component; the new nests replace them outright.
+            worst = np.argsort(keys, kind="stable")[n - n_worst :]
+            proposal = nests[worst] + walk[worst]
+            np.clip(proposal, lo, hi, out=proposal)
+            nests[worst] = proposal
+            keys[worst] = evaluate(proposal, it)
 
         best = int(np.argmin(keys))
         history[it - 1] = keys[best]

@@ -1,10 +1,13 @@
 """The CSO objective: time-domain criteria of the closed-loop tracking error (DESIGN §5).
 
 **Scenarios.** A fixed, seeded set of S reference scenarios "of the kind the agent produces":
-q_d(0) drawn uniformly in the middle 60 % of each joint's range, q(0) = q_d(0) + offset with the
-offset's sign drawn per joint (magnitude ``offset`` rad), q̇_d uniform within the robot's velocity
-bounds and redrawn every ``switch_period`` (30 ms), for ``horizon`` seconds, with the plant's F
-and τ_d active (each scenario has its own τ_d seed). Every candidate sees the same scenarios.
+q_d(0) drawn uniformly in the middle 60 % of each joint's range — except a ``straight_share`` of
+them, which start with joints 2..n at 0 (the straight arm, where M(q)⁻¹ is largest) — q(0) =
+q_d(0) + offset with the offset's sign drawn per joint (magnitude ``offset`` rad), velocity
+commands uniform within the robot's bounds, redrawn every ``switch_period`` (30 ms) and fed
+through the reference generator (`armexp.sim.core.REFERENCES`), for ``horizon`` seconds, with the
+plant's F and τ_d active (each scenario has its own τ_d seed). Every candidate sees the same
+scenarios.
 
 **Criteria.** Per scenario and joint j, on the normalised error ε(t) = e1_j(t) / e1_j(0), which
 starts at 1 and should decay to 0:
@@ -18,6 +21,20 @@ starts at 1 and should decay to 0:
 
 They combine as Gaing (2004): W = (1 − e^−β)(M_p + E_ss) + e^−β (t_s − t_r), β = ``gaing_beta``
 (1), summed over joints and averaged over scenarios. A run that diverges scores +inf.
+
+**Constraints** (DESIGN §5). W is blind to what makes gains unusable, so the score is
+
+    score = W + effort_weight · P + saturation_weight · L       (stable candidates)
+    score = +inf                                                 (otherwise)
+
+* stability: the sampled loop with every gain × ``gain_margin`` must be stable at every pose of
+  `armexp.tune.stability.pose_grid` (``stability_points`` per joint, the straight arm
+  included); such candidates are not simulated. ``gain_margin: null`` drops the constraint.
+* effort while tracking, with the plant's torque limits: over the part of each scenario after
+  ``effort_from`` × horizon (the offset is removed by then; removing it may need the limit),
+  P is the peak of max_j |τ_j| / limit_j and L the fraction of steps with some joint at its
+  limit, both averaged over the scenarios. Without limits both are 0. ``peak_torque`` reports
+  the peak over the whole run.
 """
 
 from __future__ import annotations
@@ -29,6 +46,7 @@ import numpy as np
 from armexp.sim.core import simulate_batch
 from armexp.sim.model import Array, Plant
 from armexp.sim.scenario import command_count, hold_steps
+from armexp.tune import stability
 
 
 @dataclass(frozen=True)
@@ -43,6 +61,12 @@ class ObjectiveSettings:
     rise_high: float = 0.9
     rise_low: float = 0.1
     steady_window: float = 0.2
+    straight_share: float = 0.25
+    gain_margin: float | None = 1.25
+    stability_points: int = 9
+    effort_weight: float = 0.1
+    saturation_weight: float = 1.0
+    effort_from: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -73,6 +97,8 @@ def make_scenarios(
     hi = np.asarray(joint_upper, float)
     mid, half = (lo + hi) / 2, 0.3 * (hi - lo)
     q0 = rng.uniform(mid - half, mid + half, size=(s, n))
+    straight = round(settings.straight_share * s)
+    q0[:straight, 1:] = np.clip(0.0, lo[1:], hi[1:])
     offset = settings.offset * rng.choice([-1.0, 1.0], size=(s, n))
     try:
         hold = hold_steps(settings.switch_period, dt)
@@ -97,6 +123,12 @@ class Criteria:
     steady_state_error: Array
     diverged: Array  # (K, S) bool
     score: Array  # (K,)
+    #: Per candidate: peak max_j |τ_j| (N·m, max over scenarios), mean peak |τ_j| / limit_j and
+    #: mean fraction of steps at the limit (over scenarios), and the stability constraint met.
+    peak_torque: Array
+    peak_ratio: Array
+    time_at_limit: Array
+    stable: Array
 
 
 def _first_index(mask: np.ndarray) -> np.ndarray:
@@ -106,10 +138,19 @@ def _first_index(mask: np.ndarray) -> np.ndarray:
 
 
 def criteria_from_errors(
-    err: Array, offset: Array, dt: float, settings: ObjectiveSettings, completed: Array
+    err: Array,
+    offset: Array,
+    dt: float,
+    settings: ObjectiveSettings,
+    completed: np.ndarray,
+    torque: Array | None = None,
+    limit: Array | None = None,
+    stable: Array | None = None,
 ) -> Criteria:
-    """Criteria from e1 traces ``err`` (K, S, T, n) of runs started at ``offset`` (S, n)."""
-    _k, _s, t_len, _n = err.shape
+    """Criteria from e1 traces ``err`` (K, S, T, n) of runs started at ``offset`` (S, n), with
+    the applied ``torque`` (K, S, T, n) against ``limit`` (n,) for the effort term and the
+    stability verdict ``stable`` (K,) (see the module docstring)."""
+    k_len, _s, t_len, n = err.shape
     horizon = t_len * dt
     eps = np.moveaxis(err / offset[None, :, None, :], 2, 3)  # (K, S, n, T)
     diverged = completed < t_len
@@ -132,7 +173,22 @@ def criteria_from_errors(
     per_scenario = w.sum(axis=-1)  # (K, S)
     per_scenario = np.where(diverged | ~np.isfinite(per_scenario), np.inf, per_scenario)
     score = per_scenario.mean(axis=-1)
-    return Criteria(overshoot, rise, settle, ess, diverged, score)
+
+    stable = np.ones(k_len, bool) if stable is None else stable
+    peak = np.zeros(k_len)
+    ratio = np.zeros(k_len)
+    at_limit = np.zeros(k_len)
+    if torque is not None:
+        mag = np.nan_to_num(np.abs(torque), nan=0.0)
+        peak = mag.max(axis=(1, 2, 3))
+        lim = np.full(n, np.inf) if limit is None else np.asarray(limit, float)
+        if np.isfinite(lim).all():
+            tracking = mag[:, :, round(settings.effort_from * t_len) :]
+            ratio = (tracking / lim).max(axis=(2, 3)).mean(axis=1)
+            at_limit = (tracking >= lim).any(axis=3).mean(axis=2).mean(axis=1)
+    score = score + settings.effort_weight * ratio + settings.saturation_weight * at_limit
+    score = np.where(stable, score, np.inf)
+    return Criteria(overshoot, rise, settle, ess, diverged, score, peak, ratio, at_limit, stable)
 
 
 class TuningObjective:
@@ -142,20 +198,41 @@ class TuningObjective:
     """
 
     def __init__(
-        self, plant: Plant, kind: int, scenarios: ScenarioSet, settings: ObjectiveSettings
+        self,
+        plant: Plant,
+        kind: int,
+        scenarios: ScenarioSet,
+        settings: ObjectiveSettings,
+        poses: Array,
+        ramp: bool = True,
     ) -> None:
         self.plant = plant
         self.kind = kind
         self.scenarios = scenarios
         self.settings = settings
+        self.ramp = ramp
+        self.linearised = stability.linearise(plant, poses)
         self._model = plant.packed()
         self.n_calls = 0
 
+    def stable(self, candidates: Array) -> Array:
+        """The stability constraint (K,) of the module docstring."""
+        cand = np.atleast_2d(candidates)
+        if self.settings.gain_margin is None:
+            return np.ones(cand.shape[0], bool)
+        return stability.stable_with_margin(
+            self.kind, cand, self.linearised, self.settings.gain_margin
+        )
+
+    def gain_margin(self, gains: Array) -> float:
+        """The gain margin of one gain vector over the pose grid."""
+        return stability.gain_margin(self.kind, gains, self.linearised)
+
     def simulate(self, candidates: Array) -> tuple[Array, np.ndarray]:
-        """e1 traces (K, S, T, n) and completed step counts (K, S) for the candidates."""
+        """Traces (K, S, T, 2n) — e1, then the applied τ — and completed step counts (K, S)."""
         sc = self.scenarios
         cand = np.ascontiguousarray(np.atleast_2d(candidates), dtype=np.float64)
-        err = np.empty((cand.shape[0], sc.q0.shape[0], sc.n_steps, sc.q0.shape[1]))
+        trace = np.empty((cand.shape[0], sc.q0.shape[0], sc.n_steps, 2 * sc.q0.shape[1]))
         done = simulate_batch(
             self.kind,
             cand,
@@ -166,13 +243,25 @@ class TuningObjective:
             self._model,
             self.plant.dt,
             sc.seeds,
-            err,
+            trace,
+            self.ramp,
         )
-        return err, done
+        return trace, done
 
     def criteria(self, candidates: Array) -> Criteria:
-        err, done = self.simulate(candidates)
-        return criteria_from_errors(err, self.scenarios.offset, self.plant.dt, self.settings, done)
+        """Criteria of every candidate; unstable ones are not simulated (they score +inf)."""
+        cand = np.atleast_2d(np.asarray(candidates, dtype=np.float64))
+        sc = self.scenarios
+        n = sc.q0.shape[1]
+        stable = self.stable(cand)
+        trace = np.full((cand.shape[0], sc.q0.shape[0], sc.n_steps, 2 * n), np.nan)
+        done = np.zeros((cand.shape[0], sc.q0.shape[0]), dtype=np.int64)
+        if stable.any():
+            trace[stable], done[stable] = self.simulate(cand[stable])
+        return criteria_from_errors(
+            trace[..., :n], sc.offset, self.plant.dt, self.settings, done,
+            torque=trace[..., n:], limit=self.plant.torque_limit, stable=stable,
+        )  # fmt: skip
 
     def __call__(self, candidates: Array) -> Array:
         self.n_calls += 1
