@@ -34,6 +34,8 @@ def bench(session: nox.Session) -> None:
     session.install("-c", "constraints.txt", "-e", ".[dev,bench]")
     session.run("python", "benchmarks/sim_speed.py")
     session.run("python", "benchmarks/tune_speed.py")
+    session.run("python", "benchmarks/controller_check.py")
+    session.run("python", "benchmarks/cso_quality.py")
     session.run("python", "benchmarks/env_speed.py")
     session.run("python", "benchmarks/report_speed.py")
 

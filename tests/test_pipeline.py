@@ -8,6 +8,7 @@ from typing import Any
 import pytest
 
 from armexp.cli import main
+from armexp.config import compose_config, group_options
 from tests.helpers import SMALL_TRAIN, stage_runs
 
 SMALL = [
@@ -96,3 +97,24 @@ def test_failing_stage_fails_the_parent_and_names_itself(
     (train,) = _runs(runs, "train")
     assert train.info.status == "FAILED"
     assert all(r.info.status == "FINISHED" for r in _runs(runs, "tune"))
+
+
+@pytest.mark.parametrize("robot", group_options("robot"))
+def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) -> None:
+    """Choosing a robot is enough: both controllers get that arm's gains, search box and torque
+    limits in every stage, and the eval torques stay within its limits."""
+    runs = tmp_path / "runs"
+    assert main(["pipeline", *SMALL, f"robot={robot}", f"tracking.runs_dir={runs}"]) == 0
+    (parent,) = _runs(runs, "pipeline")
+    assert parent.info.status == "FINISHED"
+    n = len(compose_config([f"robot={robot}"]).robot.lengths)
+    limit = list(compose_config([f"robot={robot}"]).robot.torque_limit)
+    tunes = _runs(runs, "tune")
+    assert sorted(r.data.params["controller.name"] for r in tunes) == ["pid", "subsystem_adaptive"]
+    for run in tunes:
+        assert run.data.params["robot.name"] == robot
+        assert run.data.metrics["best_gain_margin"] >= 1.25
+    (ev,) = _runs(runs, "eval")
+    for label in ("adaptive", "pid"):
+        for j in range(1, n + 1):
+            assert ev.data.metrics[f"{label}.a.max_abs_tau_{j}"] <= limit[j - 1]

@@ -359,7 +359,10 @@ def test_convergence_prints_finite_times_and_a_dash_when_never_settled(
     assert _row(md, "| (c) | proposed |")[column] == "–"  # episodes.csv: inf
     assert _row(md, "| (d) | proposed |")[column] == "0.015"  # the metric, not the csv's 0.5
     assert _row(md, "| (d) | PID |")[column] == "–"  # metric inf (stored as float max)
-    assert "2 % settling time of ‖e1‖ after an initial offset of 0.05 rad" in md
+    assert (
+        "2 % settling time of the tracking error's response to an initial reference offset of "
+        "0.05 rad" in md
+    )
     torque = header.index("Max torque τ1 / τ2 (N·m)")
     assert _row(md, "| (a) | proposed |")[torque] == "312.0 / 145.0"
     assert _row(md, "| (a) | proposed |")[header.index("Time at limit (s)")] == "0.250"

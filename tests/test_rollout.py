@@ -69,6 +69,15 @@ def test_settling_time_from_a_reference_offset(env: ReachEnv) -> None:
     assert e1[k:][inside[k:]].max() <= 0.02 * e1[0] < e1[k - 1]
     # A window longer than the run cannot be judged settled.
     assert settling_time(episode, env.n, 2.0) == np.inf
+    # Against the unperturbed episode, only the offset's effect is timed: it settles no later
+    # than ‖e1‖, whose floor is the steady tracking error.
+    nominal = rollout(env, policy, {"target": (-1.0, -1.0)}, seed=0)
+    effect = settling_time(episode, env.n, 1.0, nominal)
+    assert 0.0 < effect <= tc
+    base = nominal.rows[: len(rows)]
+    delta = np.linalg.norm((rows[:, 1:3] - rows[:, 3:5]) - (base[:, 1:3] - base[:, 3:5]), axis=1)
+    k = int(np.searchsorted(rows[:, 0], effect))
+    assert delta[k:][inside[k:]].max() <= 0.02 * delta[0] < delta[k - 1]
 
 
 def test_metrics_of_a_miss(env: ReachEnv) -> None:

@@ -469,7 +469,8 @@ def _cell(rows: pd.DataFrame, key: str, number: dict[str, Any], digits: int = 3)
 def convergence_note(ctx: Context) -> str:
     offset = f" of {ctx.initial_offset}" if ctx.initial_offset else ""
     return (
-        f"‡ Convergence: 2 % settling time of ‖e1‖ after an initial offset{offset}; "
+        f"‡ Convergence: 2 % settling time of the tracking error's response to an initial "
+        f"reference offset{offset} (e1 of that run minus e1 of the same task without it); "
         "– : never settled. The paper calls its column “optimization time”."
     )
 
