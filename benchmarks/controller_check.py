@@ -102,7 +102,7 @@ def main() -> int:
 
     adaptive, margin = tune(extra)
     print(f"adaptive (cso_paper): {gain_mapping(ADAPTIVE, adaptive, 2)} | gain margin {margin:.3g}")
-    print("  switching 2 s | gains | peak |tau| run / after 0.1 s (N.m) | at limit | RMS |e1| > 0.1 s")
+    print("  switching 2 s | peak |tau| run / after 0.1 s (N.m) | at limit | RMS |e1| > 0.1 s")
     for name, gains in (("tuned", adaptive), ("paper", gain_vector(ADAPTIVE, PAPER_GAINS, 2))):
         tau, e = run(extra, gains)
         peak = float(np.abs(tau).max())

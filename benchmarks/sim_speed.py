@@ -85,12 +85,12 @@ def batch_rate(candidates: int, scenarios: int, run_steps: int, repeats: int) ->
     bound = np.array([0.1, 0.4])
     commands = rng.uniform(-1.0, 1.0, size=(scenarios, n_cmd, n)) * bound
     seeds = np.arange(scenarios)
-    err = np.empty((candidates, scenarios, n_cmd * HOLD, n))
+    trace = np.empty((candidates, scenarios, n_cmd * HOLD, 2 * n))
     model = plant.packed()
 
     def run() -> None:
         done = simulate_batch(
-            ADAPTIVE, gains, q0, offset, commands, HOLD, model, plant.dt, seeds, err
+            ADAPTIVE, gains, q0, offset, commands, HOLD, model, plant.dt, seeds, trace, True
         )
         if (done < n_cmd * HOLD).any():
             raise RuntimeError("a benchmark candidate diverged")
@@ -104,10 +104,10 @@ def reference_rate(steps: int) -> float:
     plant = Plant.build(TWO_LINK_PAPER, Uncertainty.paper())
     gains = gain_vector(ADAPTIVE, PAPER_GAINS, 2)
     q0 = np.array([0.3, -0.2])
-    commands = np.tile([0.05, -0.2], (steps, 1))
+    commands = np.tile([0.05, -0.2], (steps // HOLD, 1))
 
     def run() -> None:
-        reference.simulate(plant, ADAPTIVE, gains, q0 + 0.05, q0, commands, 1)
+        reference.simulate(plant, ADAPTIVE, gains, q0 + 0.05, q0, commands, 1, HOLD, True)
 
     return steps / _best_of(2, run)
 

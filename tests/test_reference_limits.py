@@ -41,7 +41,8 @@ def _golden_cases() -> dict[str, tuple[Plant, str, np.ndarray]]:
 @pytest.mark.parametrize("case", ["two_link_adaptive", "two_link_pid", "three_link_adaptive"])
 def test_hold_reproduces_the_zero_order_hold_core_bit_for_bit(case: str) -> None:
     """``reference=hold`` gives exactly the trajectories of the core before the ramp existed
-    (recorded from commit 8ee7c28 with the same plant, gains, commands and seed)."""
+    (recorded from commit 8ee7c28 with the same plant, gains, commands and seed): the state,
+    the reference and the torque bit for bit."""
     golden = np.load(DATA / "hold_reference_8ee7c28.npz")
     plant, controller, gains = _golden_cases()[case]
     n = plant.arm.n
@@ -49,8 +50,14 @@ def test_hold_reproduces_the_zero_order_hold_core_bit_for_bit(case: str) -> None
     q0 = np.linspace(0.3, -0.2, n)
     sim = Simulator(plant, controller, gains, q0=q0 + 0.05, qd0=q0, seed=3, reference="hold")
     rows = np.concatenate([sim.advance(c, HOLD, log=True) for c in cmds])
-    assert np.array_equal(rows[:, : 4 + 5 * n], golden[case])
+    columns = trajectory_columns(n)[: 4 + 5 * n]
+    tip = [columns.index("tip_x"), columns.index("tip_y")]
+    state = [i for i in range(len(columns)) if i not in tip]
+    assert np.array_equal(rows[:, state], golden[case][:, state])
     assert np.array_equal(sim.state, golden[case + "_state"])
+    # The logged tip is computed from q after the step, outside the loop's state; how numba
+    # inlines that helper can move it by an ulp from one compilation to the next.
+    np.testing.assert_allclose(rows[:, tip], golden[case][:, tip], rtol=0, atol=1e-15)
 
 
 def _ramp_run(n_cmd: int = 20) -> tuple[np.ndarray, np.ndarray, Simulator]:
