@@ -147,9 +147,11 @@ class ObjectiveConfig:
     gain_margin: float | None = checked(1.25, or_null(at_least(1.0)))
     stability_points: int = checked(9, at_least(2))
     #: Effort penalty: effort_weight × peak |τ|/limit + saturation_weight × share of time at
-    #: the torque limit, averaged over the scenarios (0 without torque limits).
+    #: the torque limit, over each scenario from effort_from × horizon on (after the offset is
+    #: removed), averaged over the scenarios (0 without torque limits).
     effort_weight: float = checked(0.1, nonnegative())
     saturation_weight: float = checked(1.0, nonnegative())
+    effort_from: float = checked(0.5, between(0.0, 0.99))
 
 
 @dataclass

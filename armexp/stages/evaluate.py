@@ -200,7 +200,7 @@ def _aggregate(label: str, table: pd.DataFrame) -> dict[str, float]:
         out[f"{label}.{group}.collision_rate"] = float(rows.collision.mean())
         out[f"{label}.{group}.episodes"] = float(len(rows))
         for key in ("target_time", "final_error_cm", "convergence_time"):
-            if key in won:
+            if key in won.columns:  # convergence: paper tasks only
                 out[f"{label}.{group}.mean_{key}"] = (
                     float(won[key].mean()) if len(won) else math.nan
                 )
