@@ -22,7 +22,14 @@ FIGURES = (
     "learning_curves",
     "cso_convergence",
 )
-TABLES = ("table1_environment", "table2_agent", "table3_performance", "comparison_pid", "cso_gains")
+TABLES = (
+    "table1_environment",
+    "table2_agent",
+    "table3_performance",
+    "comparison_pid",
+    "claim_check",
+    "cso_gains",
+)
 
 
 def _report(store: Path, out: Path) -> int:
@@ -91,10 +98,15 @@ def test_report_runs_without_simulation_environment_or_agent_code(
         "torch",
         "numba",
     ]
+    # A finder that fails those imports, as if the packages were not installed (a None entry
+    # in sys.modules would also hide them, but libraries that probe sys.modules trip on it).
     script = (
         "import sys\n"
-        f"for name in {blocked!r}:\n"
-        "    sys.modules[name] = None\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        f"        if any(name == b or name.startswith(b + '.') for b in {blocked!r}):\n"
+        "            raise ModuleNotFoundError(name)\n"
+        "sys.meta_path.insert(0, Block())\n"
         "from armexp.cli import main\n"
         f"sys.exit(main(['report', 'tracking.runs_dir={store}', 'report.out_dir={tmp_path}/r']))\n"
     )

@@ -28,7 +28,7 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
-from armexp.report import figures, tables
+from armexp.report import claims, figures, tables
 from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
 from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value, select
 
@@ -87,7 +87,11 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
             key=lambda a: a.train_run != train_id,
         )
         made += [tables.table_one(train_cfg), tables.table_two(train_cfg, trains)]
-    made += [tables.table_three(episodes, ctx), tables.comparison(episodes, ctx)]
+    made += [
+        tables.table_three(episodes, ctx),
+        tables.comparison(episodes, ctx),
+        claims.claim_check(episodes, ctx),
+    ]
     tunes = _tunes(selection, reader)
     if tunes:
         made.append(tables.cso_table(tunes))
