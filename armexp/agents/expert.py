@@ -15,23 +15,16 @@ speed the bounds allow (a damped least-squares step through the arm's Jacobian).
 
 The map keeps the tip ``margin`` from every obstacle, and inside that margin each grid move
 costs ``inside_cost`` free ones, so that where the tracking lag has carried the tip in, the
-quickest way on leads out first. At one free move per cell the map led on through the margin
-and the obstacle behind it, and the learner cloned that: at the preset's seed 3 its tip slid 3
-cm from the obstacle at (0.50, 1.30) on task (a), and the expert's label there was to carry on.
-Measured on 300 held-out targets with ``paper_five`` (two-link arm, the paper's gains): at 10
-cm and five steps (the defaults of ``agent.expert_margin`` and ``agent.expert_lookahead``)
-300 reached and all four paper tasks, 295 (5 collide) at one free move per cell; at the
-environment's 2 cm path margin and one step 300 reached, 248 (52 collide) at one free move
-per cell; at 5 cm and five steps 300. On the three-link arm's coarser grid (34 cells per
-joint): 19 of 20 (one times out). Without the hold rule, 1-3 % stalled a millimetre outside
-the reach threshold.
+quickest way on leads out first (at one free move per cell the map leads on through the margin
+and the obstacle behind it).
 
-Why the straight approach: a 128x128 actor regresses the labels, and near the target the greedy
-labels flip sign over a few hundredths of a radian (a five-step move overshoots the 4 cm goal
-from one side and falls short from the other). The regression averaged them to a stop 4.5 mm
-outside the reach threshold: task (c) timed out so at seed 1 of the preset, as did most of its
-time-limited held-out targets. The straight approach is continuous in the state and only
-vanishes on the target, so the regressed action still points in.
+Why the straight approach: the actor regresses the labels, and near the target the greedy labels
+flip sign over a few hundredths of a radian (a several-step move overshoots the goal from one
+side and falls short from the other), which a regression averages to a stop just outside the
+reach threshold. The straight approach is continuous in the state and only vanishes on the
+target, so the regressed action still points in.
+
+How these choices were measured is in ``docs/sac_quick_history.md``.
 """
 
 from __future__ import annotations
