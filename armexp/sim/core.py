@@ -886,28 +886,6 @@ def _run(
 
 
 @njit(cache=True)
-def step(
-    state: Array,
-    dqd: Array,
-    k: int,
-    kind: int,
-    gains: Array,
-    model: Model,
-    dt: float,
-    key: np.uint64,
-    work: Array,
-    ramp: bool,
-) -> None:
-    """Advance the closed loop by one controller period (see the module docstring)."""
-    n = dqd.shape[0]
-    one = n // n  # a run-time 1: a literal would make numba compile `_run` again
-    _run(
-        state, dqd.reshape((1, n)), one, k, kind, gains, model, dt, key, work,
-        np.empty((0, 4 + 6 * n)), np.empty((0, 2 * n)), ramp,
-    )  # fmt: skip
-
-
-@njit(cache=True)
 def advance(
     state: Array,
     dqd: Array,
@@ -1034,7 +1012,9 @@ class Simulator:
         # An np.uint64, not the Python int numba returns: a Python int above 2⁶³ sends every
         # `advance` call through numba's slow type resolution (≈ 370 µs instead of ≈ 2 µs).
         self._key = np.uint64(stream_key(self.seed))
-        self._work[2 : 2 + 4 * n] = 0.0  # last τ and the reference generator's state
+        # The last τ and the reference generator's state (the blocks before the link slots).
+        tau, _, links, *_ = _offsets(n, int(self._work[1]))
+        self._work[tau:links] = 0.0
         clear_cache(self._work)
         self.diverged = False
 
