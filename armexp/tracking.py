@@ -28,7 +28,7 @@ import mlflow
 from mlflow.entities import Run
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from armexp.config import ConfigError
 
@@ -46,7 +46,8 @@ STAGE_INPUTS: dict[str, tuple[str, ...]] = {
     "train": ("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
               "train.tune_run"),
     "eval": ("seed", "tasks", "eval.train_run", "eval.pid_gains", "eval.pid_tune_run",
-             "eval.controllers", "eval.paper_tasks", "eval.deterministic"),
+             "eval.adaptive_gains", "controller.gains", "eval.controllers", "eval.paper_tasks",
+             "eval.deterministic", "eval.initial_offset", "eval.convergence_window"),
 }  # fmt: skip
 _parents: list[str] = []
 #: The id of the stage run started last in this process (the pipeline reads its children's).
@@ -153,8 +154,16 @@ def inputs_hash(cfg: DictConfig, stage: str) -> str | None:
     keys = STAGE_INPUTS.get(stage)
     if keys is None:
         return None
-    picked = {k: OmegaConf.to_container(OmegaConf.create({"v": OmegaConf.select(cfg, k)}),
-                                        resolve=True) for k in keys}  # fmt: skip
+    picked = {}
+    for key in keys:
+        # Selected in place, so interpolations (e.g. tuner.seed: ${seed}) resolve against the root.
+        node = OmegaConf.select(cfg, key)
+        value = (
+            OmegaConf.to_container(node, resolve=True)
+            if isinstance(node, DictConfig | ListConfig)
+            else node
+        )
+        picked[key] = {"v": value}  # the shape earlier stores' hashes were made from
     text = json.dumps(picked, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -339,6 +339,9 @@ class EvalStageConfig:
     #: (``conf/per_robot/pid_<robot>.yaml`` for the policy's robot).
     pid_gains: str = checked("tuned", one_of("tuned", "config"))
     pid_tune_run: str | None = None
+    #: Adaptive gains: ``tuned`` (those the policy was trained with, its train run's
+    #: ``gains.yaml``) or ``config`` (``controller.gains`` as composed, e.g. the paper's).
+    adaptive_gains: str = checked("tuned", one_of("tuned", "config"))
     controllers: list[str] = field(default_factory=lambda: ["subsystem_adaptive", "pid"])
     #: Evaluate the paper tasks (a)-(d); plus tasks.n_random held-out random targets.
     paper_tasks: bool = True
@@ -365,6 +368,9 @@ class ReportStageConfig:
     #: Experiment to read (None: ``tracking.experiment``).
     experiment: str | None = None
     fig6_task: str = "a"
+    #: The seeds the selection should hold (a study sets them): those without a FINISHED eval
+    #: run are named as missing in the report.
+    seeds: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -372,6 +378,12 @@ class PipelineStageConfig:
     run_name: str | None = None
     #: Reuse a FINISHED run whose stage inputs match instead of running the stage again.
     reuse: bool = False
+    #: A study (`armexp.stages.study`): one pipeline per seed under one parent run, then one
+    #: report over them all (empty: a single pipeline with ``seed``).
+    seeds: list[int] = field(default_factory=list)
+    #: In a study, each seed's policy is also evaluated with the paper's adaptive gains
+    #: (``eval.adaptive_gains=config``, adaptive controller only).
+    paper_gains_row: bool = False
 
 
 @dataclass

@@ -47,6 +47,8 @@ log = logging.getLogger(__name__)
 
 TRAIN_RUN_TAG = "armexp.train_run"
 PID_TUNE_RUN_TAG = "armexp.pid_tune_run"
+#: Where the adaptive controller's gains came from: ``tuned`` (the policy's) or ``config``.
+GAINS_TAG = "armexp.adaptive_gains"
 #: Short controller labels used in metric names.
 LABELS = {"subsystem_adaptive": "adaptive", "pid": "pid"}
 
@@ -96,10 +98,19 @@ def run(cfg: DictConfig) -> dict[str, float]:
     assert isinstance(train_cfg, DictConfig)
     # The episode targets are this run's choice; the environment is the policy's.
     train_cfg.tasks = cfg.tasks
-    adaptive_gains = yaml.safe_load(
-        tracking.download_artifact(train_id, "gains.yaml", cfg).read_text()
-    )
     trained_with = str(train_cfg.controller.name)
+    if cfg.eval.adaptive_gains == "config":
+        if str(cfg.controller.name) != trained_with:
+            raise ConfigError(
+                f"eval.adaptive_gains=config is not allowed with controller={cfg.controller.name}: "
+                f"the policy was trained with {trained_with}; compose controller={trained_with}."
+            )
+        adaptive_gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
+        print(f"eval: {trained_with} gains from the config (controller.gains)")
+    else:
+        adaptive_gains = yaml.safe_load(
+            tracking.download_artifact(train_id, "gains.yaml", cfg).read_text()
+        )
     controllers = [str(c) for c in cfg.eval.controllers]
     unknown = [c for c in controllers if c not in LABELS]
     if unknown:
@@ -107,8 +118,8 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"eval.controllers={controllers} is not allowed: choose from {sorted(LABELS)}."
         )
     gains: dict[str, dict[str, Any]] = {trained_with: adaptive_gains}
-    tags = {TRAIN_RUN_TAG: train_id}
-    if train_run.data.tags.get("armexp.tune_run"):
+    tags = {TRAIN_RUN_TAG: train_id, GAINS_TAG: str(cfg.eval.adaptive_gains)}
+    if cfg.eval.adaptive_gains == "tuned" and train_run.data.tags.get("armexp.tune_run"):
         tags["armexp.tune_run"] = train_run.data.tags["armexp.tune_run"]
     for name in controllers:
         if name not in gains:

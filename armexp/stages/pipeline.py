@@ -11,6 +11,7 @@ run's is not run again: that run's id is used and tagged on the parent
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -25,11 +26,12 @@ from armexp.config import ConfigError, validate
 log = logging.getLogger(__name__)
 
 FAILED_STAGE_TAG = "armexp.failed_stage"
-STEPS = ("tune", "tune_pid", "train", "eval", "report")
+STEPS = ("tune", "tune_pid", "train", "eval", "eval_paper", "report")
 
 
 def _pid_config(cfg: DictConfig) -> DictConfig:
-    """The same run with ``controller=pid``: composed by Hydra from this job's overrides."""
+    """The same run with ``controller=pid``: composed by Hydra from this job's overrides, with
+    this config's seed (a study sets it per seed)."""
     from hydra import compose
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.hydra_config import HydraConfig
@@ -44,6 +46,13 @@ def _pid_config(cfg: DictConfig) -> DictConfig:
     pid = compose(config_name="config", overrides=[*overrides, "controller=pid"])
     validate(pid)
     return pid
+
+
+def _with_seed(cfg: DictConfig, seed: int) -> DictConfig:
+    out = copy.deepcopy(cfg)
+    with open_dict(out):
+        out.seed = seed
+    return out
 
 
 def _reusable(cfg: DictConfig, stage: str) -> str | None:
@@ -65,11 +74,25 @@ def _reusable(cfg: DictConfig, stage: str) -> str | None:
 
 
 def run(cfg: DictConfig) -> dict[str, str]:
+    """One pipeline, or with ``pipeline.seeds`` a study of one pipeline per seed."""
+    if cfg.pipeline.seeds:
+        from armexp.stages import study
+
+        return study.run(cfg)
+    return run_one(cfg)
+
+
+def run_one(
+    cfg: DictConfig, run_name: str | None = None, paper_gains_row: bool = False, report_: bool = True
+) -> dict[str, str]:
+    """tune → tune_pid → train → eval (→ eval_paper: the adaptive controller with the paper's
+    gains) (→ report) under one parent run; the ids of the stage runs by step."""
     from armexp.stages import evaluate, report, train, tune
 
-    pid_cfg = _pid_config(cfg)
+    pid_cfg = _with_seed(_pid_config(cfg), int(cfg.seed))
     ids: dict[str, str] = {}
-    with tracking.stage_run(cfg, "pipeline", run_name=cfg.pipeline.run_name) as parent:
+    name = run_name if run_name is not None else cfg.pipeline.run_name
+    with tracking.stage_run(cfg, "pipeline", run_name=name) as parent:
         parent_id = parent.info.run_id
 
         def step(name: str, stage: str, stage_cfg: DictConfig, fn: Callable[[Any], Any]) -> str:
@@ -106,13 +129,19 @@ def run(cfg: DictConfig) -> dict[str, str]:
             if cfg.eval.pid_gains == "tuned":
                 cfg.eval.pid_tune_run = ids["tune_pid"]
             step("eval", "eval", cfg, evaluate.run)
-            cfg.report.pipeline_run = parent_id
-            cfg.report.eval_runs = [ids["eval"]]
-            step("report", "report", cfg, report.run)
+            if paper_gains_row:
+                paper_cfg = copy.deepcopy(cfg)
+                paper_cfg.eval.adaptive_gains = "config"
+                paper_cfg.eval.controllers = [str(cfg.controller.name)]
+                step("eval_paper", "eval", paper_cfg, evaluate.run)
+            if report_:
+                cfg.report.pipeline_run = parent_id
+                cfg.report.eval_runs = [ids["eval"]]
+                step("report", "report", cfg, report.run)
         mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(ids)), "runs.yaml")
         print(
             f"pipeline: run {parent_id} | "
             + " | ".join(f"{k} {v[:8]}" for k, v in ids.items())
-            + f" | report: {report.out_dir(cfg) / 'index.html'}"
+            + (f" | report: {report.out_dir(cfg) / 'index.html'}" if report_ else "")
         )
     return ids

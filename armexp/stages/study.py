@@ -1,0 +1,86 @@
+"""A study: ``armexp pipeline pipeline.seeds=[0,1,2,3,4]`` (``experiment=reproduce``).
+
+One parent pipeline run (tag ``armexp.study``) holds one child pipeline per seed: both
+controllers tuned with that seed (the reproduce preset sets ``tuner.seed: ${seed}``), the agent
+trained, and its policy evaluated with both controllers (and, with ``pipeline.paper_gains_row``,
+with the paper's adaptive gains). Then one report over every seed's eval runs, with the
+statistics over seeds (`armexp.report.stats`, `armexp.report.claims`).
+
+A seed whose pipeline fails is recorded (``armexp.failed_seeds``) and the study goes on; the report
+names it as missing. Re-running the same command finishes an interrupted study: the study always
+runs with ``pipeline.reuse=true``, so every stage whose inputs match a FINISHED run is reused.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import mlflow
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from armexp import tracking
+from armexp.config import ConfigError
+
+STUDY_TAG = "armexp.study"
+FAILED_SEEDS_TAG = "armexp.failed_seeds"
+
+
+def run(cfg: DictConfig) -> dict[str, str]:
+    from armexp.stages import pipeline, report
+
+    seeds = [int(s) for s in cfg.pipeline.seeds]
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"pipeline.seeds={seeds} is not allowed: each seed must appear once.")
+    ids: dict[str, str] = {}
+    failed: dict[int, str] = {}
+    evals: list[str] = []
+    name = cfg.pipeline.run_name or f"study, seeds {','.join(map(str, seeds))}"
+    with tracking.stage_run(
+        cfg, "pipeline", run_name=name, extra_tags={STUDY_TAG: ",".join(map(str, seeds))}
+    ) as parent:
+        parent_id = parent.info.run_id
+        for seed in seeds:
+            seed_cfg = copy.deepcopy(cfg)
+            with open_dict(seed_cfg):
+                seed_cfg.seed = seed
+                seed_cfg.pipeline.seeds = []
+                seed_cfg.pipeline.reuse = True
+            print(f"study: seed {seed} ({seeds.index(seed) + 1} of {len(seeds)})")
+            try:
+                with tracking.parent(parent_id):
+                    steps = pipeline.run_one(
+                        seed_cfg,
+                        run_name=f"seed {seed}",
+                        paper_gains_row=bool(cfg.pipeline.paper_gains_row),
+                        report_=False,
+                    )
+            except (KeyboardInterrupt, SystemExit):
+                raise
+            except Exception as exc:  # the other seeds still run and are reported
+                failed[seed] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+                print(f"study: seed {seed} failed ({failed[seed]}); going on")
+                mlflow.set_tag(FAILED_SEEDS_TAG, ",".join(map(str, sorted(failed))))
+                continue
+            for step, run_id in steps.items():
+                ids[f"{step}.{seed}"] = run_id
+            evals += [steps[s] for s in ("eval", "eval_paper") if s in steps]
+        if not evals:
+            raise RuntimeError(f"every seed of the study failed: {failed}")
+        with open_dict(cfg):
+            cfg.report.pipeline_run = parent_id
+            cfg.report.eval_runs = evals
+            cfg.report.seeds = seeds
+        with tracking.parent(parent_id):
+            report.run(cfg)
+        assert tracking.last_run_id is not None
+        ids["report"] = tracking.last_run_id
+        mlflow.set_tag("armexp.run.report", ids["report"])
+        summary: dict[str, Any] = {"runs": ids, "failed_seeds": failed}
+        mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(summary)), "runs.yaml")
+        print(
+            f"study: run {parent_id} | {len(seeds) - len(failed)} of {len(seeds)} seeds"
+            + (f" (failed: {', '.join(map(str, sorted(failed)))})" if failed else "")
+            + f" | report: {report.out_dir(cfg) / 'index.html'}"
+        )
+    return ids
