@@ -99,6 +99,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     # The episode targets are this run's choice; the environment is the policy's.
     train_cfg.tasks = cfg.tasks
     trained_with = str(train_cfg.controller.name)
+    adaptive_gains: Any
     if cfg.eval.adaptive_gains == "config":
         if str(cfg.controller.name) != trained_with:
             raise ConfigError(

@@ -83,7 +83,10 @@ def run(cfg: DictConfig) -> dict[str, str]:
 
 
 def run_one(
-    cfg: DictConfig, run_name: str | None = None, paper_gains_row: bool = False, report_: bool = True
+    cfg: DictConfig,
+    run_name: str | None = None,
+    paper_gains_row: bool = False,
+    report_: bool = True,
 ) -> dict[str, str]:
     """tune → tune_pid → train → eval (→ eval_paper: the adaptive controller with the paper's
     gains) (→ report) under one parent run; the ids of the stage runs by step."""
