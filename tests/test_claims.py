@@ -72,15 +72,31 @@ def test_missed_and_never_settled_episodes_are_left_out() -> None:
     assert out["better accuracy"].episodes == 23  # all but (b)
 
 
-def test_one_run_resamples_the_episodes_and_says_so() -> None:
+def test_one_seed_measures_the_claim_but_gives_no_verdict_and_says_why() -> None:
     table = claim_check(_episodes(1, (0.15, 0.8), (0.08, 1.0), noise=0.2))
     acc = table.numbers.set_index("claim").loc["better accuracy"]
-    assert acc.runs == 1 and acc.ci_low < acc.improvement < acc.ci_high
-    assert np.isnan(acc.prob_ci_low)
-    assert any("One eval run" in note for note in table.notes)
+    assert acc.runs == 1 and acc.seeds == 1
+    assert acc.improvement == pytest.approx((acc.iqm_pid - acc.iqm_proposed) / acc.iqm_pid)
+    assert np.isnan(acc.ci_low) and np.isnan(acc.ci_high)
+    assert set(table.numbers.verdict) == {"none (needs ≥ 2 seeds)"}
+    assert any("No verdict where fewer than 2 seeds" in note for note in table.notes)
     md = table.markdown()
-    assert "faster convergence (paper: ≈ 10 %)" in md and "confirmed" in md
-    assert "1 × 24" in md
+    assert "| confirmed |" not in md and "1 × 24" in md
+
+
+def test_a_ratio_against_a_zero_is_a_dash_not_a_verdict() -> None:
+    episodes = _episodes(3, (0.15, 0.8), (0.08, 1.0))
+    episodes.loc[episodes.controller == "pid", "tip_rms_cm"] = 0.0
+    acc = claim_check(episodes).shown.set_index("Claim").loc["better accuracy (paper: ≈ 18 %)"]
+    assert acc["Improvement [95 % CI]"] == "–" and acc.Verdict == "inconclusive"
+    assert "100" not in acc["Improvement [95 % CI]"]
+
+
+def test_an_agent_evaluated_without_pid_is_left_out() -> None:
+    episodes = _episodes(3, (0.15, 0.8), (0.08, 1.0))
+    paper = episodes[episodes.controller == "adaptive"].assign(agent="sac_quick, paper gains")
+    table = claim_check(pd.concat([episodes, paper], ignore_index=True))
+    assert len(table.numbers) == 2 and set(table.numbers.verdict) == {"confirmed"}
 
 
 def test_nothing_reached_by_both_is_inconclusive() -> None:

@@ -382,7 +382,7 @@ def test_convergence_prints_finite_times_and_a_dash_when_never_settled(
 
 
 def test_several_agents_are_told_apart_not_averaged_together() -> None:
-    from armexp.report import tables
+    from armexp.report import performance
 
     rows = []
     for agent, preset, aided, tracking in (
@@ -394,12 +394,12 @@ def test_several_agents_are_told_apart_not_averaged_together() -> None:
             rows.append({**episode, "eval_run": preset, "agent": agent,
                          "agent_preset": preset, "aided": aided})  # fmt: skip
     episodes = pd.DataFrame(rows)
-    table = tables.table_three(episodes)
+    table = performance.table_three(episodes)
     proposed = table.shown[table.shown.Control == "proposed"]
-    assert list(proposed.Agent) == ["sac_quick (aided)", "sac_paper"]
+    assert list(proposed.Agent) == ["sac_quick (aided)", "sac_paper (plain)"]
     assert list(proposed["Tracking error (cm)"]) == ["0.500", "2.000"]
-    comparison = tables.comparison(episodes)
-    assert set(comparison.shown.Agent) == {"sac_quick (aided)", "sac_paper"}
+    comparison = performance.comparison(episodes)
+    assert set(comparison.shown.Agent) == {"sac_quick (aided)", "sac_paper (plain)"}
 
 
 def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:

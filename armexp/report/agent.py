@@ -64,6 +64,8 @@ class AgentInfo:
     stop_reason: str = ""
     status: str = ""
     known: bool = True
+    #: Empty: evaluated with the gains it was trained with; else e.g. "paper gains".
+    gains: str = ""
 
     @property
     def aided(self) -> bool:
@@ -76,14 +78,16 @@ class AgentInfo:
             return f"unknown (train run {self.train_run or '?'} is not in this store)"
         privileged = [a.name for a in self.aids if a.privileged]
         other = [a.name for a in self.aids if not a.privileged]
+        gains = f", evaluated with {self.gains}" if self.gains else ""
         if privileged:
             text = f"aided: {', '.join(privileged)}"
             if other:
                 text += f"; also {', '.join(other)}"
-            return f"{self.preset} ({text})"
+            return f"{self.preset} ({text}){gains}"
         if other:
-            return f"{self.preset} (learning aids without privileged knowledge: {', '.join(other)})"
-        return f"{self.preset} (plain SAC, no learning aids)"
+            aids = ", ".join(other)
+            return f"{self.preset} (learning aids without privileged knowledge: {aids}){gains}"
+        return f"{self.preset} (plain SAC, no learning aids){gains}"
 
 
 def _num(value: Any) -> float:

@@ -5,9 +5,10 @@ claim the episodes both controllers ran and reached in every selected eval run f
 matrix, one row per eval run (seed) and one column per episode (task or held-out target; the
 strata). The measured improvement is (IQM_PID − IQM_proposed) / IQM_PID of the metric (lower is
 better for both), with a 95 % stratified bootstrap CI over the runs within each episode
-(`armexp.report.stats`); with a single run the episodes themselves are resampled. The
-probability of improvement is P(proposed < PID) per episode, averaged. The verdict is
-`armexp.report.stats.verdict` against the claimed size.
+(`armexp.report.stats`). The probability of improvement is P(proposed < PID) per episode,
+averaged. The verdict is `armexp.report.stats.verdict` against the claimed size; with fewer than
+two seeds there is no spread between seeds to measure, so the table shows the point values and
+says why it gives no verdict.
 """
 
 from __future__ import annotations
@@ -19,14 +20,16 @@ import numpy as np
 import pandas as pd
 
 from armexp.report import stats
-from armexp.report.tables import PAPER_TASKS, Context, Table, _agent_names, _agents, _of_agent
+from armexp.report.performance import N_BOOT, PAPER_TASKS, agent_names, agents, has_pid, of_agent
+from armexp.report.tables import Context, Table
 
 #: (claim, metric column, what it measures, claimed relative improvement, paper tasks only).
 CLAIMS = (
     ("faster convergence", "convergence_time", "convergence time (s)", 0.10, True),
     ("better accuracy", "tip_rms_cm", "tip tracking error (cm)", 0.18, False),
 )
-N_BOOT = 2000
+#: Fewer distinct seeds than this: the claim is measured but no verdict is given.
+MIN_SEEDS = 2
 
 
 def _matrices(rows: pd.DataFrame, key: str, tasks_only: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -56,25 +59,36 @@ def _matrices(rows: pd.DataFrame, key: str, tasks_only: bool) -> tuple[np.ndarra
     return ours.reshape(len(table), len(keep)), pid.reshape(len(table), len(keep))
 
 
-def _check(ours: np.ndarray, pid: np.ndarray, claimed: float) -> dict[str, Any]:
+def _check(ours: np.ndarray, pid: np.ndarray, claimed: float, seeds: int) -> dict[str, Any]:
     runs, episodes = ours.shape
     if episodes == 0 or runs == 0:
-        return {"runs": runs, "episodes": 0, "verdict": "inconclusive"}
-    # With one run there is nothing to resample across seeds: resample the episodes instead.
-    a, b = (ours, pid) if runs > 1 else (ours.T, pid.T)
-    point, low, high = stats.relative_improvement_ci(a, b, n_boot=N_BOOT)
-    if runs > 1:
-        p, p_low, p_high = stats.probability_of_improvement_ci(
-            ours, pid, higher_is_better=False, n_boot=N_BOOT
-        )
-    else:  # one run per episode: the share of episodes where the proposed control is better
-        p = stats.probability_of_improvement(ours, pid, higher_is_better=False)
-        p_low = p_high = math.nan
-    return {
+        return {"runs": runs, "episodes": 0, "seeds": seeds, "verdict": "inconclusive"}
+    out: dict[str, Any] = {
         "runs": runs,
         "episodes": episodes,
+        "seeds": seeds,
         "iqm_proposed": float(stats.iqm(ours)),
         "iqm_pid": float(stats.iqm(pid)),
+        "prob_improvement": stats.probability_of_improvement(ours, pid, higher_is_better=False),
+    }
+    if seeds < MIN_SEEDS or runs < 2:
+        base = out["iqm_pid"]
+        point = (base - out["iqm_proposed"]) / base if base > 0 else math.nan
+        return {
+            **out,
+            "improvement": point,
+            "ci_low": math.nan,
+            "ci_high": math.nan,
+            "prob_ci_low": math.nan,
+            "prob_ci_high": math.nan,
+            "verdict": f"none (needs ≥ {MIN_SEEDS} seeds)",
+        }
+    point, low, high = stats.relative_improvement_ci(ours, pid, n_boot=N_BOOT)
+    p, p_low, p_high = stats.probability_of_improvement_ci(
+        ours, pid, higher_is_better=False, n_boot=N_BOOT
+    )
+    return {
+        **out,
         "improvement": float(point),
         "ci_low": float(low),
         "ci_high": float(high),
@@ -92,12 +106,15 @@ def _pct(x: float) -> str:
 def claim_check(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
     """One row per claim (and per agent when several presets are selected)."""
     ctx = ctx or Context()
-    names = _agent_names(episodes)
+    names = agent_names(episodes)
     shown_rows, numbers = [], []
-    for agent in _agents(episodes):
-        sub = _of_agent(episodes, agent)
+    for agent in agents(episodes):
+        sub = of_agent(episodes, agent)
+        if not has_pid(sub):
+            continue  # e.g. the paper's gains, evaluated with the adaptive controller only
+        seeds = int(sub["seed"].nunique()) if "seed" in sub.columns else sub.eval_run.nunique()
         for claim, key, metric, claimed, tasks_only in CLAIMS:
-            result = _check(*_matrices(sub, key, tasks_only), claimed)
+            result = _check(*_matrices(sub, key, tasks_only), claimed, seeds)
             shown: dict[str, Any] = {"Claim": f"{claim} (paper: ≈ {100 * claimed:.0f} %)"}
             if names:
                 shown["Agent"] = names[agent]
@@ -107,10 +124,11 @@ def claim_check(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
                 shown["IQM proposed / PID"] = (
                     f"{result['iqm_proposed']:.4g} / {result['iqm_pid']:.4g}"
                 )
-                shown["Improvement [95 % CI]"] = (
-                    f"{_pct(result['improvement'])} "
-                    f"[{_pct(result['ci_low'])}, {_pct(result['ci_high'])}]"
-                )
+                shown["Improvement [95 % CI]"] = _pct(result["improvement"])
+                if math.isfinite(result["ci_low"]):
+                    shown["Improvement [95 % CI]"] += (
+                        f" [{_pct(result['ci_low'])}, {_pct(result['ci_high'])}]"
+                    )
                 prob = f"{result['prob_improvement']:.2f}"
                 if math.isfinite(result["prob_ci_low"]):
                     prob += f" [{result['prob_ci_low']:.2f}, {result['prob_ci_high']:.2f}]"
@@ -122,24 +140,33 @@ def claim_check(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
             shown["Verdict"] = result["verdict"]
             shown_rows.append(shown)
             numbers.append(
-                {"claim": claim, "metric": key, "claimed": claimed, "agent": names.get(agent, ""),
-                 **result}
-            )  # fmt: skip
+                {
+                    "claim": claim,
+                    "metric": key,
+                    "claimed": claimed,
+                    "agent": names.get(agent, ""),
+                    **result,
+                }
+            )
     notes = [
         "Improvement: (IQM of PID − IQM of the proposed control) / IQM of PID over the episodes "
         "both controllers reached in every selected eval run, positive when the proposed "
         "control is better; 95 % stratified bootstrap CI over the runs (seeds) within each "
-        "episode, or over the episodes when there is one run. P(improvement): probability that "
+        f"episode ({N_BOOT} resamples). P(improvement): probability that "
         "the proposed control's value is the lower one in an episode (Mann–Whitney), with its "
         "CI over runs. Verdict: confirmed (CI above the claimed size), direction only (CI above "
         "0, not all above the claim), refuted (CI below 0), inconclusive (otherwise). "
         "Agarwal et al., NeurIPS 2021.",
     ]
-    if any(r["runs"] == 1 for r in numbers):
+    few = sorted({r["seeds"] for r in numbers if r["seeds"] < MIN_SEEDS})
+    if few:
         notes.append(
-            "One eval run: the CI covers the episodes of one seed only, not the spread between "
-            "seeds; select several seeds' eval runs to settle a claim."
+            f"No verdict where fewer than {MIN_SEEDS} seeds were selected ({few[0]} here): a "
+            "claim is settled by the spread between seeds, which one seed cannot show. Select "
+            "several seeds' eval runs (e.g. experiment=reproduce)."
         )
+    if ctx.missing:
+        notes.append(ctx.missing)
     return Table(
         "claim_check",
         "Claim check: the paper's claims against PID",

@@ -72,6 +72,14 @@ def select(
             )
         )
 
+    def pipeline_evals(run_id: str) -> list[Run]:
+        """FINISHED eval runs under a pipeline run, or under the per-seed pipelines of a study."""
+        out = search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{run_id}'")
+        children = search(f"tags.`{STAGE_TAG}` = 'pipeline' and tags.`{PARENT_TAG}` = '{run_id}'")
+        for child in sorted(children, key=lambda r: r.info.start_time):
+            out += search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{child.info.run_id}'")
+        return out
+
     if eval_runs:
         evals = []
         for run_id in eval_runs:
@@ -90,18 +98,19 @@ def select(
             evals.append(run)
         how = f"eval runs {', '.join(eval_runs)}"
     elif pipeline_run:
-        evals = search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{pipeline_run}'")
+        evals = pipeline_evals(pipeline_run)
         how = f"eval runs of pipeline run {pipeline_run}"
     elif filter_string:
         evals = search(f"{finished_evals} and {filter_string}")
         how = f"eval runs matching {filter_string}"
     else:
-        pipelines = search(f"tags.`{STAGE_TAG}` = 'pipeline'", 1)
-        evals = (
-            search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{pipelines[0].info.run_id}'")
-            if pipelines
-            else []
-        )
+        # The latest top-level pipeline: a study's per-seed pipelines are its children.
+        pipelines = [
+            r
+            for r in search(f"tags.`{STAGE_TAG}` = 'pipeline'", 100)
+            if PARENT_TAG not in r.data.tags
+        ]
+        evals = pipeline_evals(pipelines[0].info.run_id) if pipelines else []
         how = f"eval runs of the latest pipeline run {pipelines[0].info.run_id}" if evals else ""
         if not evals:
             evals = search(finished_evals, 1)

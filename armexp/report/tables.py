@@ -3,16 +3,10 @@
 * Table I: environment parameters (from the train run's config),
 * Table II: agent parameters as used, beside the paper's: the preset, its learning aids (and
   whether any uses privileged knowledge), the budget configured and the budget spent,
-* Table III: per task (a)–(d) and controller: target time, target error, tip tracking error,
-  max |τ| per joint, time at the torque limit, convergence time (2 % settling time after an
-  initial offset); mean ± 95 % CI (Student t) when several eval runs (seeds) are selected; the
-  paper's row as printed, with a note on its target-error units,
-* the proposed-vs-PID comparison with relative improvements ("–" where a ratio means nothing:
-  an unreached task, a zero or a non-finite value), and held-out success rates,
-* the CSO results: tuned gains beside the paper's, with their objective values.
+* the CSO results: tuned gains beside the paper's, with their objective values;
 
-Tables III and the comparison carry a caption naming the agent behind them and saying when it
-was aided (`armexp.report.agent`).
+and the `Table` every report table is written through. Table III and the PID comparison are
+`armexp.report.performance`, the claim check `armexp.report.claims`.
 """
 
 from __future__ import annotations
@@ -24,66 +18,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from armexp.report.agent import AgentInfo, aids_of, caption
 
-# Two-sided 95 % Student t quantiles by degrees of freedom (1.96 beyond the table).
-_T95 = {
-    1: 12.706,
-    2: 4.303,
-    3: 3.182,
-    4: 2.776,
-    5: 2.571,
-    6: 2.447,
-    7: 2.365,
-    8: 2.306,
-    9: 2.262,
-    10: 2.228,
-    12: 2.179,
-    15: 2.131,
-    20: 2.086,
-    25: 2.060,
-    30: 2.042,
-    60: 2.000,
-}
-#: Table III as printed in the paper (target time s, target error cm, tracking error cm, max
-#: torque N·m, convergence time s), shown beside ours.
-PAPER_TABLE_III = {
-    "a": (9.176, 0.025, 0.0006, 400.0, 0.01),
-    "b": (9.92, 0.037, 0.0008, 360.0, 0.03),
-    "c": (11.16, 0.029, 0.001, 400.0, 0.05),
-    "d": (5.456, 0.039, 0.0002, 220.0, 0.009),
-}
 
-
-def t95(n: int) -> float:
-    """The 95 % two-sided Student t quantile for n samples (n − 1 degrees of freedom)."""
-    df = n - 1
-    if df < 1:
-        return math.nan
-    keys = [k for k in _T95 if k <= df]
-    return _T95[max(keys)] if df <= 60 else 1.96
-
-
-def mean_ci(values: pd.Series) -> tuple[float, float, int]:
-    v = values.dropna().to_numpy(dtype=float)
-    n = v.size
-    if n == 0:
-        return math.nan, math.nan, 0
-    if n == 1:
-        return float(v[0]), math.nan, 1
-    return float(v.mean()), t95(n) * float(v.std(ddof=1)) / math.sqrt(n), n
-
-
-def fmt(mean: float, ci: float = math.nan, digits: int = 3) -> str:
-    if not math.isfinite(mean):
+def fmt(value: float, digits: int = 3) -> str:
+    if not math.isfinite(value):
         return "–"
-    text = f"{mean:.{digits}g}" if abs(mean) < 1e-2 and mean != 0 else f"{mean:.{digits}f}"
-    if math.isfinite(ci):
-        text += f" ± {ci:.{digits}f}" if ci >= 1e-2 else f" ± {ci:.{digits}g}"
-    return text
+    return f"{value:.{digits}g}" if abs(value) < 1e-2 and value != 0 else f"{value:.{digits}f}"
 
 
 @dataclass
@@ -100,6 +43,8 @@ class Context:
     reach_threshold: float = 0.04
     #: An aided agent is shown and the paper's plain SAC is not among the selected runs.
     plain_missing: bool = False
+    #: A sentence naming the seeds (``report.seeds``) without a finished eval run; None: none.
+    missing: str | None = None
 
 
 @dataclass
@@ -401,305 +346,6 @@ def _plain(v: Any) -> str:
     return str(v)
 
 
-# ------------------------------------------------------------------------------- table III
-CONTROL_NAMES = {"adaptive": "proposed", "pid": "PID"}
-PAPER_TASKS = ("a", "b", "c", "d")
-#: The paper's reach threshold (Table I), in cm.
-PAPER_THRESHOLD_CM = 4.0
-
-
-PLAIN_MISSING = (
-    "The paper's plain SAC is not among the selected runs: add the eval runs of a plain preset "
-    "(e.g. sac_paper) to report.eval_runs to show it beside the aided agent."
-)
-
-
-def with_max_torque(episodes: pd.DataFrame) -> pd.DataFrame:
-    taus = [c for c in episodes.columns if c.startswith("max_abs_tau_")]
-    out = episodes.copy()
-    out["max_torque"] = out[taus].max(axis=1)
-    return out
-
-
-def _joints(episodes: pd.DataFrame) -> list[int]:
-    return sorted(
-        int(c.rsplit("_", 1)[1]) for c in episodes.columns if c.startswith("max_abs_tau_")
-    )
-
-
-def _agents(episodes: pd.DataFrame) -> list[Any]:
-    return list(dict.fromkeys(episodes["agent"])) if "agent" in episodes.columns else [None]
-
-
-def _of_agent(episodes: pd.DataFrame, agent: Any) -> pd.DataFrame:
-    return episodes if agent is None else episodes[episodes["agent"] == agent]
-
-
-def _agent_names(episodes: pd.DataFrame) -> dict[Any, str]:
-    """Short names of the agents when a table shows several (none: one agent, no column)."""
-    labels = _agents(episodes)
-    if len(labels) <= 1:
-        return {}
-    short = {}
-    for label in labels:
-        first = _of_agent(episodes, label).iloc[0]
-        preset = str(first.get("agent_preset", label))
-        short[label] = f"{preset} (aided)" if bool(first.get("aided", False)) else preset
-    if len(set(short.values())) < len(short):
-        return {label: str(label) for label in labels}
-    return short
-
-
-def _agent_columns(rows: pd.DataFrame, agent: Any) -> dict[str, Any]:
-    aided = bool(rows["aided"].iloc[0]) if "aided" in rows.columns and len(rows) else math.nan
-    return {"agent": "" if agent is None else agent, "aided": aided}
-
-
-def _column(rows: pd.DataFrame, key: str) -> pd.Series:
-    return rows[key] if key in rows.columns else pd.Series(dtype=float)
-
-
-def _cell(rows: pd.DataFrame, key: str, number: dict[str, Any], digits: int = 3) -> str:
-    """Mean ± CI of one column, shown; the numbers go into ``number`` (the CSV row)."""
-    mean, ci, n = mean_ci(_column(rows, key))
-    number.update({key: mean, f"{key}_ci95": ci, f"{key}_n": n})
-    return fmt(mean, ci, digits)
-
-
-def convergence_note(ctx: Context) -> str:
-    offset = f" of {ctx.initial_offset}" if ctx.initial_offset else ""
-    return (
-        f"‡ Convergence: 2 % settling time of the tracking error's response to an initial "
-        f"reference offset{offset} (e1 of that run minus e1 of the same task without it); "
-        "– : never settled. The paper calls its column “optimization time”."
-    )
-
-
-def units_note() -> str:
-    errors = [v[1] for v in PAPER_TABLE_III.values()]
-    lo, hi = min(errors), max(errors)
-    return (
-        "† Paper: its Table III (proposed control only), values and units as printed. Its "
-        f"target-error column is labelled cm, but {lo:g}–{hi:g} cm ({lo * 10:g}–{hi * 10:g} mm) "
-        f"is far below anything its {PAPER_THRESHOLD_CM:g} cm reach threshold would stop at; "
-        f"read as metres ({lo * 100:g}–{hi * 100:g} cm) the values sit just under the threshold, "
-        "where the motion stops. Our target error is in cm."
-    )
-
-
-def table_three(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
-    """Per paper task: each controller's Table III quantities (mean ± 95 % CI over the selected
-    eval runs when there are several) and the paper's row as printed; per agent when the
-    selection holds several."""
-    ctx = ctx or Context()
-    ep = with_max_torque(episodes)
-    ep = ep[ep.task.isin(PAPER_TASKS)]
-    joints = _joints(ep)
-    at_limit = "time_at_limit" in ep.columns and bool(ep["time_at_limit"].notna().any())
-    names = _agent_names(ep)
-    torque = f"Max torque {' / '.join(f'τ{j}' for j in joints)} (N·m)"
-    convergence = "Convergence (s)‡"
-    shown_rows, numbers = [], []
-    for task in sorted(ep.task.unique()):
-        for agent in _agents(ep):
-            for controller in CONTROL_NAMES:
-                rows = _of_agent(ep[(ep.task == task) & (ep.controller == controller)], agent)
-                if rows.empty:
-                    continue
-                shown: dict[str, Any] = {"Task": f"({task})", "Control": CONTROL_NAMES[controller]}
-                if names:
-                    shown["Agent"] = names[agent]
-                shown["Reached"] = f"{int(rows.success.sum())}/{len(rows)}"
-                number: dict[str, Any] = {
-                    "task": task,
-                    "controller": controller,
-                    **_agent_columns(rows, agent),
-                    "runs": len(rows),
-                    "success_rate": rows.success.mean(),
-                }
-
-                shown["Target time (s)"] = _cell(rows, "target_time", number)
-                shown["Target error (cm)"] = _cell(rows, "final_error_cm", number)
-                shown["Tracking error (cm)"] = _cell(rows, "tip_rms_cm", number)
-                shown[torque] = " / ".join(
-                    _cell(rows, f"max_abs_tau_{j}", number, 1) for j in joints
-                )
-                _cell(rows, "max_torque", number, 1)
-                if at_limit:
-                    shown["Time at limit (s)"] = _cell(rows, "time_at_limit", number)
-                shown[convergence] = _cell(rows, "convergence_time", number)
-                never = int(np.isinf(_column(rows, "convergence_time").to_numpy(float)).sum())
-                number["convergence_time_never_settled"] = never
-                if never and len(rows) > 1:
-                    shown[convergence] = f"– ({never}/{len(rows)} never settled)"
-                shown_rows.append(shown)
-                numbers.append(number)
-        if task in PAPER_TABLE_III:
-            target_time, error, tracking, max_torque, conv = PAPER_TABLE_III[task]
-            paper: dict[str, Any] = {"Task": f"({task})", "Control": "paper"}
-            if names:
-                paper["Agent"] = "–"
-            paper.update(
-                {
-                    "Reached": "–",
-                    "Target time (s)": f"{target_time:g}",
-                    "Target error (cm)": f"{error:g} cm†",
-                    "Tracking error (cm)": f"{tracking:g}",
-                    torque: f"{max_torque:g} (either joint)",
-                }
-            )
-            if at_limit:
-                paper["Time at limit (s)"] = "–"
-            paper[convergence] = f"{conv:g}"
-            shown_rows.append(paper)
-            numbers.append(
-                {
-                    "task": task,
-                    "controller": "paper",
-                    "target_time": target_time,
-                    "final_error_cm": error,
-                    "tip_rms_cm": tracking,
-                    "max_torque": max_torque,
-                    "convergence_time": conv,
-                    "note": "as printed; the target error is labelled cm but reads as metres",
-                }
-            )
-    threshold = ctx.reach_threshold * 100.0
-    limits = " Time at limit: seconds with a joint torque at its limit." if at_limit else ""
-    if ctx.torque_limit:
-        limits += f" Torque limit: {ctx.torque_limit} (robot.torque_limit)."
-    n_runs = int(ep.eval_run.nunique()) if "eval_run" in ep and len(ep) else 0
-    notes = [
-        f"Reached: episodes whose tip came within {threshold:g} cm of the target. Target time: "
-        f"first time the tip error < {threshold:g} cm (reached episodes only; – : not reached). "
-        "Target error: tip-to-target distance at the episode's end. Tracking error: RMS distance "
-        "between the tip at q and at q_d. Max torque: the largest |τ| over the episode, per "
-        f"joint.{limits}",
-        convergence_note(ctx),
-        units_note(),
-        f"Mean ± 95 % CI (Student t) over {n_runs} eval runs." if n_runs > 1 else "One eval run.",
-    ]
-    if ctx.plain_missing:
-        notes.append(PLAIN_MISSING)
-    return Table(
-        "table3_performance",
-        "Table III: performance of the proposed control (and of PID)",
-        pd.DataFrame(shown_rows),
-        pd.DataFrame(numbers),
-        notes,
-        caption=ctx.agent,
-    )
-
-
-def improvement(proposed: float, pid: float) -> float:
-    """(PID − proposed) / PID in %, positive when the proposed controller is better; NaN when
-    either value is zero, negative or not finite (a ratio against zero says nothing)."""
-    if not (math.isfinite(proposed) and math.isfinite(pid)) or proposed <= 0 or pid <= 0:
-        return math.nan
-    return (pid - proposed) / pid * 100.0
-
-
-def _means(rows: pd.DataFrame, key: str) -> tuple[float, float]:
-    """Mean of ``key`` with the proposed controller and with PID."""
-    ours = _column(rows[rows.controller == "adaptive"], key)
-    pid = _column(rows[rows.controller == "pid"], key)
-    return float(ours.mean()), float(pid.mean())
-
-
-def _both_reached(rows: pd.DataFrame) -> bool:
-    """Both controllers ran the task and reached it in every selected run."""
-    for controller in ("adaptive", "pid"):
-        success = rows.success[rows.controller == controller].to_numpy(dtype=float)
-        if success.size == 0 or not (success > 0).all():
-            return False
-    return True
-
-
-def comparison(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
-    """Proposed vs PID per paper task and over the tasks both reached: relative improvements
-    (PID − proposed) / PID, "–" where either controller missed the task or a value is zero or
-    not finite."""
-    ctx = ctx or Context()
-    ep = with_max_torque(episodes)
-    keys = (
-        ("convergence_time", "convergence"),
-        ("tip_rms_cm", "tracking"),
-        ("final_error_cm", "target error"),
-        ("target_time", "target time"),
-    )
-    tasks_ep = ep[ep.task.isin(PAPER_TASKS)]
-    names = _agent_names(tasks_ep)
-    shown_rows, numbers = [], []
-    for agent in _agents(tasks_ep):
-        sub = _of_agent(tasks_ep, agent)
-        tasks = sorted(sub.task.unique())
-        reached = {t: _both_reached(sub[sub.task == t]) for t in tasks}
-        both = [t for t in tasks if reached[t]]
-        groups = [(f"({t})", [t], reached[t]) for t in tasks]
-        if tasks and both == tasks:
-            groups.append(("all tasks", tasks, True))
-        elif both:
-            groups.append(("tasks both reached: " + ", ".join(f"({t})" for t in both), both, True))
-        elif tasks:
-            groups.append(("all tasks (none reached by both)", tasks, False))
-        for name, group, ok in groups:
-            rows = sub[sub.task.isin(group)]
-            ours, pid = rows[rows.controller == "adaptive"], rows[rows.controller == "pid"]
-            shown: dict[str, Any] = {"Task": name}
-            if names:
-                shown["Agent"] = names[agent]
-            shown["Reached (proposed / PID)"] = (
-                f"{int(ours.success.sum())}/{len(ours)} / {int(pid.success.sum())}/{len(pid)}"
-            )
-            number: dict[str, Any] = {
-                "task": name,
-                **_agent_columns(rows, agent),
-                "reached_by_both": ok,
-            }
-            for key, label in keys:
-                a, p = _means(rows, key)
-                # Over several tasks, only when each task's own ratio means something.
-                each = [improvement(*_means(sub[sub.task == t], key)) for t in group]
-                defined = ok and all(math.isfinite(g) for g in each)
-                gain = improvement(a, p) if defined else math.nan
-                shown[f"{label}: proposed / PID"] = f"{fmt(a)} / {fmt(p)}"
-                shown[f"{label} improvement"] = f"{gain:+.1f} %" if math.isfinite(gain) else "–"
-                number.update(
-                    {f"{key}_adaptive": a, f"{key}_pid": p, f"{key}_improvement_pct": gain}
-                )
-            shown_rows.append(shown)
-            numbers.append(number)
-    notes = [
-        "Improvement: (PID − proposed) / PID, positive when the proposed controller is better. "
-        "– : either controller did not reach the task (in some selected run), or a value is "
-        "zero or not finite (a ratio against zero, an unreached target or an error that never "
-        "settled says nothing); over several tasks, – unless every task's own ratio is defined.",
-        convergence_note(ctx),
-    ]
-    claim = "Paper's claim: about 10 % faster convergence and 18 % better accuracy than PID."
-    rand = ep[ep.task.str.startswith("random_")]
-    if len(rand):
-        rates = rand.groupby("controller").success.mean()
-        claim += (
-            " Held-out random targets reached: "
-            + ", ".join(
-                f"{c} {rates[c]:.0%} of {int((rand.controller == c).sum())}" for c in rates.index
-            )
-            + "."
-        )
-    notes.append(claim)
-    if ctx.plain_missing:
-        notes.append(PLAIN_MISSING)
-    return Table(
-        "comparison_pid",
-        "Proposed control vs PID (same policy, same targets)",
-        pd.DataFrame(shown_rows),
-        pd.DataFrame(numbers),
-        notes,
-        caption=ctx.agent,
-    )
-
-
 def paper_gains() -> dict[str, float]:
     """The paper's adaptive gains, from the config tree (``controller.gains=paper``)."""
     from omegaconf import OmegaConf
@@ -761,14 +407,4 @@ def cso_table(tunes: list[dict[str, Any]]) -> Table:
         "CSO results: tuned gains and objective W (lower is better)",
         pd.DataFrame(shown_rows),
         pd.DataFrame(numbers),
-    )
-
-
-def success_summary(episodes: pd.DataFrame) -> pd.DataFrame:
-    ep = episodes.copy()
-    ep["group"] = np.where(ep.task.str.startswith("random_"), "random", "paper tasks")
-    return ep.groupby(["controller", "group"]).agg(
-        episodes=("success", "size"),
-        success_rate=("success", "mean"),
-        collision_rate=("collision", "mean"),
     )

@@ -28,11 +28,14 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
-from armexp.report import claims, figures, tables
+from armexp.report import claims, figures, performance, seed_figures, tables
 from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
 from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value, select
 
 REPORT_RUNS_TAG = "armexp.report_runs"
+GAINS_TAG = "armexp.adaptive_gains"
+#: Above this many train runs the per-run training curves give way to the across-seed ones.
+MAX_TRAINING_CURVES = 4
 TRAIN_RUN_TAG = "armexp.train_run"
 
 
@@ -75,10 +78,12 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
     primary = selection.evals[0]
     train_id = primary.data.tags.get(TRAIN_RUN_TAG, "")
     configs = {tid: reader.yaml(tid, "config.yaml") for tid in sorted(selection.trains)}
+    _one_setting(selection, configs)
     train_cfg = configs.get(train_id)
     agents = _agents(selection, configs)
     episodes = _episodes(selection, reader, agents)
     ctx = _context(selection, agents, train_cfg)
+    ctx.missing = _missing(selection, [int(s) for s in cfg.report.seeds])
 
     made: list[tables.Table] = []
     if train_cfg:
@@ -88,8 +93,8 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
         )
         made += [tables.table_one(train_cfg), tables.table_two(train_cfg, trains)]
     made += [
-        tables.table_three(episodes, ctx),
-        tables.comparison(episodes, ctx),
+        performance.table_three(episodes, ctx),
+        performance.comparison(episodes, ctx),
         claims.claim_check(episodes, ctx),
     ]
     tunes = _tunes(selection, reader)
@@ -146,11 +151,29 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
                 f"Fig. 6: joint position tracking in task ({task}), first 0.1 s enlarged.",
             )
     curves = _learning_curves(selection, reader)
-    if curves:
+    if curves and len(curves) <= MAX_TRAINING_CURVES:
         save(
             figures.learning_curves(curves),
+            "training_curves",
+            "Training curves of each train run: success rate and episode reward against "
+            "environment steps.",
+        )
+    groups = _held_out_curves(selection, reader, agents)
+    if groups:
+        save(
+            seed_figures.learning_curves_ci(groups, n_boot=performance.N_BOOT),
             "learning_curves",
-            "Learning curves: success rate and episode reward against environment steps.",
+            "Learning curves: held-out success of the policy as it trained, IQM across seeds "
+            "with a 95 % stratified bootstrap band, per agent preset.",
+        )
+    profiles = seed_figures.performance_profiles(episodes, n_boot=performance.N_BOOT)
+    if profiles is not None:
+        save(
+            profiles,
+            "performance_profiles",
+            "Performance profiles on the held-out targets, both controllers: the share of runs "
+            "above each success rate and of episodes below each tip tracking error, with 95 % "
+            "stratified bootstrap bands across seeds.",
         )
     if tunes:
         histories = {f"{t['controller']} ({t['run_id'][:8]})": t["history"] for t in tunes}
@@ -173,8 +196,62 @@ def _agents(selection: Selection, configs: dict[str, Any]) -> dict[str, AgentInf
     out = {}
     for ev in selection.evals:
         tid = ev.data.tags.get(TRAIN_RUN_TAG, "")
-        out[ev.info.run_id] = agent_info(tid, selection.trains.get(tid), configs.get(tid))
+        info = agent_info(tid, selection.trains.get(tid), configs.get(tid))
+        if ev.data.tags.get(GAINS_TAG) == "config":
+            info.gains = _gains_label(ev)
+        out[ev.info.run_id] = info
     return out
+
+
+def _gains_label(ev: Any) -> str:
+    """How an eval run with ``eval.adaptive_gains=config`` is named: "paper gains" when its
+    logged ``controller.gains.*`` are the paper's."""
+    published = tables.paper_gains()
+    logged = {k: _param(ev.data.params.get(f"controller.gains.{k}")) for k in published}
+    same = all(
+        isinstance(v, int | float) and math.isclose(float(v), published[k])
+        for k, v in logged.items()
+    )
+    return "paper gains" if same else "configured gains"
+
+
+def _one_setting(selection: Selection, configs: dict[str, Any]) -> None:
+    """One robot and one obstacle set: the tables compare episodes task by task."""
+    for key in ("robot", "obstacles"):
+        seen: dict[str, str] = {}
+        for ev in selection.evals:
+            tid = ev.data.tags.get(TRAIN_RUN_TAG, "")
+            cfg = configs.get(tid) or {}
+            name = (cfg.get(key) or {}).get("name") or ev.data.params.get(f"{key}.name")
+            if name is not None:
+                seen.setdefault(str(name), ev.info.run_id)
+        if len(seen) > 1:
+            from armexp.config import ConfigError
+
+            runs = ", ".join(f"{name} (eval run {rid})" for name, rid in seen.items())
+            raise ConfigError(
+                f"report.eval_runs mixes {key} settings, which is not allowed: {runs}; select "
+                f"eval runs of one {key} setting per report."
+            )
+
+
+def _missing(selection: Selection, seeds: list[int]) -> str | None:
+    """The sentence naming the expected seeds without a selected eval run (None: none)."""
+    have = set()
+    for ev in selection.evals:
+        try:
+            have.add(int(ev.data.params.get("seed", "")))
+        except ValueError:
+            continue
+    missing = [s for s in seeds if s not in have]
+    if not missing:
+        return None
+    listed = ", ".join(map(str, missing))
+    return (
+        f"Missing: seed{'s' if len(missing) > 1 else ''} {listed} of {len(seeds)} has no finished "
+        f"eval run (its pipeline failed or was interrupted); the statistics are over the other "
+        f"{len(seeds) - len(missing)}."
+    )
 
 
 def _param(text: str | None) -> Any:
@@ -204,6 +281,7 @@ def _episodes(selection: Selection, reader: Reader, agents: dict[str, AgentInfo]
         frame.insert(2, "agent", info.label)
         frame.insert(3, "agent_preset", info.preset)
         frame.insert(4, "aided", info.aided)
+        frame.insert(5, "gains", info.gains)
         paper = frame.task.isin(list(TASKS))
         for name, value in sorted(ev.data.metrics.items()):
             label, _, rest = name.partition(".")
@@ -291,6 +369,22 @@ def _learning_curves(selection: Selection, reader: Reader) -> dict[str, dict[str
             "held_out": reader.history(run_id, "eval/success_rate"),
         }
     return curves
+
+
+def _held_out_curves(
+    selection: Selection, reader: Reader, agents: dict[str, AgentInfo]
+) -> dict[str, list[pd.DataFrame]]:
+    """Held-out success histories (``eval/success_rate``) per agent preset, one per train run."""
+    by_train = {a.train_run: a for a in agents.values()}
+    groups: dict[str, list[pd.DataFrame]] = {}
+    for run_id in sorted(selection.trains):
+        history = reader.history(run_id, "eval/success_rate")
+        info = by_train.get(run_id)
+        if not len(history) or info is None:
+            continue
+        label = f"{info.preset} ({'aided' if info.aided else 'plain'})"
+        groups.setdefault(label, []).append(history)
+    return groups
 
 
 def _runs_table(selection: Selection, agents: dict[str, AgentInfo]) -> pd.DataFrame:
