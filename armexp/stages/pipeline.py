@@ -44,6 +44,12 @@ def _pid_config(cfg: DictConfig) -> DictConfig:
 
         return compose_config([*overrides, "controller=pid"])
     pid = compose(config_name="config", overrides=[*overrides, "controller=pid"])
+    # Hydra records the job's overrides resolved (``tuner.seed=${seed}`` as ``tuner.seed=0``):
+    # every section but the controller is taken from the job's own config instead.
+    with open_dict(pid):
+        for key in cfg:
+            if key != "controller":
+                pid[key] = copy.deepcopy(cfg[key])
     validate(pid)
     return pid
 
