@@ -28,7 +28,7 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
-from armexp.report import claims, figures, performance, seed_figures, tables
+from armexp.report import claims, figures, performance, seed_figures, summary, tables
 from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
 from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value, select
 
@@ -92,10 +92,12 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
             key=lambda a: a.train_run != train_id,
         )
         made += [tables.table_one(train_cfg), tables.table_two(train_cfg, trains)]
+    claim_table = claims.claim_check(episodes, ctx)
+    made.insert(0, summary.summary(episodes, claim_table, ctx))
     made += [
         performance.table_three(episodes, ctx),
         performance.comparison(episodes, ctx),
-        claims.claim_check(episodes, ctx),
+        claim_table,
     ]
     tunes = _tunes(selection, reader)
     if tunes:

@@ -1,0 +1,59 @@
+"""Copy a report's summary into the README's results section (between its markers).
+
+    python scripts/readme_results.py runs/report            # the report folder of a study
+
+The section is replaced by ``tables/summary.md`` of that report, the commands that made and
+regenerate it, and the ids of the runs it was made from, so the README's numbers always come
+from a stored report, never from hand-written prose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+START, END = "<!-- results:start -->", "<!-- results:end -->"
+
+
+def section(report: Path, command: str) -> str:
+    summary = (report / "tables" / "summary.md").read_text().strip()
+    # The summary's own title line is the section's heading already.
+    summary = re.sub(r"^\*\*Summary\*\*\s*", "", summary)
+    runs = pd.read_csv(report / "runs.csv")
+    evals = runs[runs.stage == "eval"]
+    lines = [
+        START,
+        f"Made by `{command}`; regenerate the report with the command at the end of its "
+        "`index.html`.",
+        "",
+        summary,
+        "",
+        f"Eval runs ({len(evals)}): " + ", ".join(f"`{r}`" for r in evals.run_id) + ".",
+        END,
+    ]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("report", type=Path, help="a report folder (with tables/summary.md)")
+    parser.add_argument("--readme", type=Path, default=Path("README.md"))
+    parser.add_argument("--command", default="armexp pipeline experiment=reproduce")
+    args = parser.parse_args()
+    text = args.readme.read_text()
+    if START not in text or END not in text:
+        print(f"{args.readme} has no {START} … {END} section", file=sys.stderr)
+        return 2
+    head, rest = text.split(START, 1)
+    _, tail = rest.split(END, 1)
+    args.readme.write_text(head + section(args.report, args.command) + tail)
+    print(f"{args.readme}: results section replaced from {args.report}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
