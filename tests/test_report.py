@@ -19,10 +19,12 @@ FIGURES = (
     "fig4_target_error",
     "fig5_torques",
     "fig6_tracking",
-    "learning_curves",
+    "training_curves",
+    "performance_profiles",
     "cso_convergence",
 )
 TABLES = (
+    "summary",
     "table1_environment",
     "table2_agent",
     "table3_performance",

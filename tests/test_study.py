@@ -22,6 +22,8 @@ SMALL = [
     "tuner.seed=${seed}",
     "pipeline.seeds=[0,1,2]",
     "pipeline.paper_gains_row=true",
+    "train.eval_every=300",
+    "train.eval_targets=2",
 ]
 
 
@@ -72,7 +74,8 @@ def test_a_study_with_a_failed_seed_reports_the_others_and_is_finished_by_a_reru
     for name in ("table3_performance.md", "comparison_pid.md", "claim_check.md"):
         assert missing in (tables / name).read_text(), name
     assert missing in (runs / "report" / "index.html").read_text()
-    assert (runs / "report" / "figures" / "performance_profiles.png").exists()
+    for figure in ("performance_profiles", "learning_curves"):
+        assert (runs / "report" / "figures" / f"{figure}.png").exists(), figure
 
     # The same command again, without the fault: seeds 0 and 2 are reused, seed 1 runs.
     monkeypatch.setattr(train, "run", real)

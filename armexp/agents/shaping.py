@@ -41,8 +41,7 @@ class TimeToGoPotential:
     A cell with no finite time (its tip within the path margin of an obstacle, or cut off from
     the target) gets the least time over paths through such cells to a finite cell, at
     ``inside_cost`` time cells per grid move, so that the potential stays continuous where the
-    arm skirts an obstacle (finite times are never shortened through them; before that was so,
-    most free cells' times were, and ``agent.shaping`` was measured on those times).
+    arm skirts an obstacle (finite times are never shortened through them).
     Time-to-go maps are kept for the ``cache`` most recent targets (one search is ~15 ms).
     """
 
