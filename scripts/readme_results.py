@@ -19,7 +19,7 @@ import pandas as pd
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 
 
-def section(report: Path, command: str) -> str:
+def section(report: Path, source: str) -> str:
     summary = (report / "tables" / "summary.md").read_text().strip()
     # The summary's own title line is the section's heading already.
     summary = re.sub(r"^\*\*Summary\*\*\s*", "", summary)
@@ -27,8 +27,7 @@ def section(report: Path, command: str) -> str:
     evals = runs[runs.stage == "eval"]
     lines = [
         START,
-        f"Made by `{command}`; regenerate the report with the command at the end of its "
-        "`index.html`.",
+        f"{source} Regenerate the report with the command at the end of its `index.html`.",
         "",
         summary,
         "",
@@ -42,7 +41,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("report", type=Path, help="a report folder (with tables/summary.md)")
     parser.add_argument("--readme", type=Path, default=Path("README.md"))
-    parser.add_argument("--command", default="armexp pipeline experiment=reproduce")
+    parser.add_argument(
+        "--source", default="From `armexp pipeline experiment=reproduce`.", help="what made it"
+    )
     args = parser.parse_args()
     text = args.readme.read_text()
     if START not in text or END not in text:
@@ -50,7 +51,7 @@ def main() -> int:
         return 2
     head, rest = text.split(START, 1)
     _, tail = rest.split(END, 1)
-    args.readme.write_text(head + section(args.report, args.command) + tail)
+    args.readme.write_text(head + section(args.report, args.source) + tail)
     print(f"{args.readme}: results section replaced from {args.report}")
     return 0
 

@@ -62,7 +62,8 @@ def _matrices(rows: pd.DataFrame, key: str, tasks_only: bool) -> tuple[np.ndarra
 def _check(ours: np.ndarray, pid: np.ndarray, claimed: float, seeds: int) -> dict[str, Any]:
     runs, episodes = ours.shape
     if episodes == 0 or runs == 0:
-        return {"runs": runs, "episodes": 0, "seeds": seeds, "verdict": "inconclusive"}
+        judged = "inconclusive" if seeds >= MIN_SEEDS else f"none (needs ≥ {MIN_SEEDS} seeds)"
+        return {"runs": runs, "episodes": 0, "seeds": seeds, "verdict": judged}
     out: dict[str, Any] = {
         "runs": runs,
         "episodes": episodes,

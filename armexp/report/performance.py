@@ -128,9 +128,9 @@ def statistics_note(n_runs: int, n_seeds: int) -> str:
     if n_runs <= 1:
         return "One eval run: each cell is that run's value."
     return (
-        f"IQM [95 % CI] over {n_runs} eval runs ({n_seeds} seeds): interquartile mean over the "
-        f"runs, percentile stratified bootstrap with {N_BOOT} resamples (Agarwal et al., "
-        "NeurIPS 2021)."
+        f"IQM [95 % CI]: interquartile mean over each row's eval runs (one per seed; {n_runs} "
+        f"runs, {n_seeds} seeds selected) with a percentile stratified bootstrap CI, {N_BOOT} "
+        "resamples (Agarwal et al., NeurIPS 2021); a single run shows its value."
     )
 
 

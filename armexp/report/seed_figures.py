@@ -201,6 +201,8 @@ def performance_profiles(episodes: pd.DataFrame, n_boot: int = 2000) -> Figure |
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3, which="both")
     if left.get_lines():
-        left.legend(fontsize=8)
+        # Below both panels: series names (agent, controller) are too long to sit inside one.
+        left.legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.18), ncol=2)
     fig.suptitle("Performance profiles (95 % stratified bootstrap bands across seeds)")
+    fig.tight_layout()
     return fig

@@ -168,7 +168,9 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
             "Learning curves: held-out success of the policy as it trained, IQM across seeds "
             "with a 95 % stratified bootstrap band, per agent preset.",
         )
-    profiles = seed_figures.performance_profiles(episodes, n_boot=performance.N_BOOT)
+    short = performance.agent_names(episodes)
+    named = episodes.assign(agent=episodes.agent.map(short)) if short else episodes
+    profiles = seed_figures.performance_profiles(named, n_boot=performance.N_BOOT)
     if profiles is not None:
         save(
             profiles,
