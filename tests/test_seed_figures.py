@@ -127,31 +127,14 @@ def _episodes() -> pd.DataFrame:
     for (agent, controller), runs in SUCCESS.items():
         scale = 1.0 if controller == "adaptive" else 3.0
         for seed, successes in enumerate(runs):
-            run = f"{agent}-{controller}-{seed}"
+            run = {"eval_run": f"{agent}-{controller}-{seed}", "seed": seed, "agent": agent,
+                   "controller": controller}  # fmt: skip
             for k, s in enumerate(successes):
-                rows.append(
-                    dict(
-                        eval_run=run,
-                        seed=seed,
-                        agent=agent,
-                        controller=controller,
-                        task=f"random_{k:03d}",
-                        success=float(s),
-                        tip_rms_cm=scale * float(rng.uniform(0.5, 5.0)),
-                    )
-                )
-            for task in "abcd":  # paper tasks: huge errors and failures, to be ignored
-                rows.append(
-                    dict(
-                        eval_run=run,
-                        seed=seed,
-                        agent=agent,
-                        controller=controller,
-                        task=task,
-                        success=0.0,
-                        tip_rms_cm=1000.0,
-                    )
-                )
+                error = scale * float(rng.uniform(0.5, 5.0))
+                rows.append({**run, "task": f"random_{k:03d}", "success": float(s),
+                             "tip_rms_cm": error})  # fmt: skip
+            # Paper tasks: huge errors and failures, to be ignored.
+            rows += [{**run, "task": t, "success": 0.0, "tip_rms_cm": 1000.0} for t in "abcd"]
     return pd.DataFrame(rows)
 
 

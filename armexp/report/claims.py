@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from armexp.report import stats
-from armexp.report.performance import N_BOOT, PAPER_TASKS, agent_names, agents, has_pid, of_agent
+from armexp.report.performance import N_BOOT, PAPER_TASKS, agent_names, run_counts, with_pid
 from armexp.report.tables import Context, Table
 
 #: (claim, metric column, what it measures, claimed relative improvement, paper tasks only).
@@ -109,11 +109,8 @@ def claim_check(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
     ctx = ctx or Context()
     names = agent_names(episodes)
     shown_rows, numbers = [], []
-    for agent in agents(episodes):
-        sub = of_agent(episodes, agent)
-        if not has_pid(sub):
-            continue  # e.g. the paper's gains, evaluated with the adaptive controller only
-        seeds = int(sub["seed"].nunique()) if "seed" in sub.columns else sub.eval_run.nunique()
+    for agent, sub in with_pid(episodes):
+        _, seeds = run_counts(sub)
         for claim, key, metric, claimed, tasks_only in CLAIMS:
             result = _check(*_matrices(sub, key, tasks_only), claimed, seeds)
             shown: dict[str, Any] = {"Claim": f"{claim} (paper: ≈ {100 * claimed:.0f} %)"}

@@ -11,6 +11,7 @@ non-finite value is shown as "–" (DESIGN §9).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -120,8 +121,13 @@ def _cell(rows: pd.DataFrame, key: str, numbers: dict[str, Any], digits: int = 3
     return text
 
 
-def has_pid(rows: pd.DataFrame) -> bool:
-    return bool((rows.controller == "pid").any())
+def with_pid(episodes: pd.DataFrame) -> Iterator[tuple[Any, pd.DataFrame]]:
+    """(agent, its episodes) for each agent evaluated with PID too: the ones a comparison with
+    PID can be made for (not, e.g., the paper's gains evaluated with the adaptive control only)."""
+    for agent in agents(episodes):
+        sub = of_agent(episodes, agent)
+        if bool((sub.controller == "pid").any()):
+            yield agent, sub
 
 
 def statistics_note(n_runs: int, n_seeds: int) -> str:
@@ -323,10 +329,7 @@ def comparison(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
     tasks_ep = ep[ep.task.isin(PAPER_TASKS)]
     names = agent_names(tasks_ep)
     shown_rows, numbers = [], []
-    for agent in agents(tasks_ep):
-        sub = of_agent(tasks_ep, agent)
-        if not has_pid(sub):
-            continue  # e.g. the paper's gains, evaluated with the adaptive controller only
+    for agent, sub in with_pid(tasks_ep):
         tasks = sorted(sub.task.unique())
         reached = {t: both_reached(sub[sub.task == t]) for t in tasks}
         both = [t for t in tasks if reached[t]]
