@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import subprocess
 import tempfile
 import time
@@ -31,6 +32,10 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from armexp.config import ConfigError
+
+# Stages download small artifacts often (configs, gains, models): MLflow's per-download progress
+# bars would fill the terminal. A user's own setting wins.
+os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 
 STAGE_TAG = "armexp.stage"
 COMMIT_TAG = "armexp.git_commit"

@@ -203,6 +203,9 @@ def run(cfg: DictConfig) -> dict[str, float]:
         mlflow.log_text(yaml.safe_dump(mapping, sort_keys=False), "gains.yaml")
         fig = _convergence_figure(result, reference)
         mlflow.log_figure(fig, "convergence.png")
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)  # a sweep or study tunes many times in one process
 
         print(
             f"tune: run {active.info.run_id} | {cfg.controller.name} | best W {result.best_f:.4g} "
