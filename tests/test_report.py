@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -421,3 +422,39 @@ def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
     addons = aids_of({"addons": [{"_target_": "armexp.agents.expert.ExpertLabels"}]})
     assert [(a.name, a.privileged) for a in addons] == [("ExpertLabels", True)]
     assert AgentInfo("t", "sac_paper", []).label == "sac_paper (plain SAC, no learning aids)"
+
+
+def test_out_dir_that_is_not_a_report_is_refused_and_left_as_it_was(
+    store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "d"
+    folder.mkdir()
+    (folder / "keep").write_text("x")
+    assert _report(store, folder) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"report.out_dir={folder} is not allowed" in err[0]
+    assert (folder / "keep").read_text() == "x" and sorted(p.name for p in folder.iterdir()) == [
+        "keep"
+    ]
+
+
+def test_a_failing_report_keeps_the_previous_one(
+    store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from armexp.stages import report
+
+    out = tmp_path / "report"
+    assert _report(store, out) == 0
+    before = (out / "tables" / "table3_performance.md").read_text()
+
+    def broken(*args: Any, **kwargs: Any) -> Any:
+        raise RuntimeError("disk full (injected)")
+
+    monkeypatch.setattr(report.figures, "tip_paths", broken)
+    assert _report(store, out) == 1
+    assert (out / "tables" / "table3_performance.md").read_text() == before
+    assert (out / ".armexp-report").exists()
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+    assert leftovers == []
+    monkeypatch.undo()
+    assert _report(store, out) == 0  # an earlier report's folder is replaced

@@ -208,3 +208,19 @@ def test_train_with_demonstrations_cloning_and_an_aid_logs_the_demonstrations(
     assert m["demonstrations/steps"] > 6 * 50  # whole episodes of seconds, not single steps
     # The demonstrations do not count as the agent's own environment steps.
     assert m["final/env_steps"] <= 152
+
+
+def test_parallel_environments_log_one_row_per_episode(runs_dir: Path) -> None:
+    """8 environments with 10-step episodes end their episodes on the same steps with the same
+    values; every episode still gets its own metric row."""
+    rc = main(
+        ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.n_envs=8", "env.max_steps=10",
+         "agent.max_env_steps=400", "agent.learning_starts=50", f"tracking.runs_dir={runs_dir}"]
+    )  # fmt: skip
+    assert rc == 0
+    run = _runs(runs_dir, "train")[0]
+    episodes = int(run.data.metrics["final/episodes"])
+    assert episodes >= 32
+    client = _client(runs_dir)
+    for key in ("episode/length", "episode/success", "episode/collision", "episode/reward"):
+        assert len(client.get_metric_history(run.info.run_id, key)) == episodes, key

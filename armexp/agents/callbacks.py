@@ -85,12 +85,17 @@ class EpisodeStats(BaseCallback):
         return self.wall_offset + time.perf_counter() - self.started
 
     def _on_step(self) -> bool:
-        now = int(time.time() * 1000)
+        clock = int(time.time() * 1000)
         step = self.num_timesteps
+        ended = 0
         for info in self.locals["infos"]:
             episode = info.get("episode")
             if episode is None:
                 continue
+            # MLflow keeps one row per (key, timestamp, step, value): episodes of parallel
+            # environments that end on the same step get their own millisecond.
+            now = clock + ended
+            ended += 1
             self.episodes += 1
             success, collision = bool(info.get("is_success")), bool(info.get("collision"))
             self.recent.append((success, collision))

@@ -8,6 +8,7 @@ were used. Nothing here imports the simulation, environment or agent code.
 from __future__ import annotations
 
 import math
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +142,10 @@ class Reader:
         self.uri = tracking_uri
         self.client = MlflowClient(tracking_uri)
         self._dir = Path(tempfile.mkdtemp(prefix="armexp-report-"))
+
+    def close(self) -> None:
+        """Remove the downloaded artifacts."""
+        shutil.rmtree(self._dir, ignore_errors=True)
 
     def path(self, run_id: str, artifact: str) -> Path | None:
         mlflow.set_tracking_uri(self.uri)

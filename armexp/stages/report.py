@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import html
 import math
+import os
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +30,14 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
+from armexp.config import ConfigError
 from armexp.report import claims, figures, performance, seed_figures, summary, tables
 from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
 from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value, select
 
 REPORT_RUNS_TAG = "armexp.report_runs"
+#: The file that marks a folder as an armexp report (which a new report may replace).
+MARKER = ".armexp-report"
 GAINS_TAG = "armexp.adaptive_gains"
 #: Above this many train runs the per-run training curves give way to the across-seed ones.
 MAX_TRAINING_CURVES = 4
@@ -54,12 +59,23 @@ def run(cfg: DictConfig) -> dict[str, float]:
         eval_runs=[str(r) for r in cfg.report.eval_runs],
         filter_string=cfg.report.filter,
     )
-    folder = out_dir(cfg)
-    if folder.exists():
-        shutil.rmtree(folder)
-    (folder / "figures").mkdir(parents=True)
-    (folder / "tables").mkdir()
-    summary = build(selection, Reader(uri), folder, cfg)
+    target = out_dir(cfg)
+    _check_out_dir(target)
+    # Built beside the target and swapped in when complete: an interrupted or failed report
+    # leaves the previous one as it was.
+    target.parent.mkdir(parents=True, exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+    reader = Reader(uri)
+    try:
+        (folder / "figures").mkdir()
+        (folder / "tables").mkdir()
+        (folder / MARKER).write_text("made by armexp report; the folder is replaced as a whole\n")
+        summary = build(selection, reader, folder, cfg)
+        _swap(folder, target)
+    finally:
+        reader.close()
+        shutil.rmtree(folder, ignore_errors=True)
+    folder = target
     ids = ",".join(r.info.run_id for r in selection.evals)
     with tracking.stage_run(
         cfg, "report", run_name=cfg.report.run_name, extra_tags={REPORT_RUNS_TAG: ids[:5000]}
@@ -71,6 +87,34 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"({selection.how}) | open {folder / 'index.html'}"
         )
     return summary
+
+
+def _check_out_dir(folder: Path) -> None:
+    """A report replaces its folder as a whole, so it writes only into a new or empty folder or
+    into a previous report's (one holding the `MARKER` file)."""
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"report.out_dir={folder} is not allowed: it is a file, not a folder.")
+    # Reports made before the marker existed are recognised by their layout.
+    earlier = (folder / MARKER).exists() or (
+        (folder / "index.html").is_file() and (folder / "tables").is_dir()
+    )
+    if folder.is_dir() and any(folder.iterdir()) and not earlier:
+        raise ConfigError(
+            f"report.out_dir={folder} is not allowed: the folder holds files that are not an "
+            f"armexp report (no {MARKER} in it) and a report replaces its whole folder; give a "
+            "new or empty folder, or an earlier report's."
+        )
+
+
+def _swap(new: Path, target: Path) -> None:
+    """Put the finished report ``new`` where ``target`` is, removing the previous report."""
+    old = None
+    if target.exists():
+        old = target.with_name(f".{target.name}.old-{os.getpid()}")
+        target.rename(old)
+    new.rename(target)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -> dict[str, float]:
@@ -230,8 +274,6 @@ def _one_setting(selection: Selection, configs: dict[str, Any]) -> None:
             if name is not None:
                 seen.setdefault(str(name), ev.info.run_id)
         if len(seen) > 1:
-            from armexp.config import ConfigError
-
             runs = ", ".join(f"{name} (eval run {rid})" for name, rid in seen.items())
             raise ConfigError(
                 f"report.eval_runs mixes {key} settings, which is not allowed: {runs}; select "
@@ -296,8 +338,6 @@ def _episodes(selection: Selection, reader: Reader, agents: dict[str, AgentInfo]
                     frame.loc[rows, key] = metric_value(value)
         frames.append(frame)
     if not frames:
-        from armexp.config import ConfigError
-
         raise ConfigError(
             "the report has nothing to show: the selected eval runs have no episodes.csv "
             "artifact (were their artifacts deleted?)."
