@@ -13,6 +13,7 @@ The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import logging
@@ -55,6 +56,8 @@ STAGE_INPUTS: dict[str, tuple[str, ...]] = {
              "eval.deterministic", "eval.initial_offset", "eval.convergence_window"),
 }  # fmt: skip
 _parents: list[str] = []
+#: SQLite stores this process has opened (created and migrated under a lock).
+_opened: set[str] = set()
 #: The id of the stage run started last in this process (the pipeline reads its children's).
 last_run_id: str | None = None
 MAX_PARAM_LENGTH = 6000
@@ -66,12 +69,32 @@ for _noisy in ("alembic", "mlflow.store.db.utils"):
 
 
 def store_uri(cfg: DictConfig) -> str:
-    """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``."""
+    """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``; a
+    SQLite store is created (or migrated) under a lock the first time this process uses it."""
     if cfg.tracking.uri:
-        return str(cfg.tracking.uri)
-    runs = Path(cfg.tracking.runs_dir).resolve()
-    runs.mkdir(parents=True, exist_ok=True)
-    return f"sqlite:///{runs / 'mlflow.db'}"
+        uri = str(cfg.tracking.uri)
+    else:
+        runs = Path(cfg.tracking.runs_dir).resolve()
+        runs.mkdir(parents=True, exist_ok=True)
+        uri = f"sqlite:///{runs / 'mlflow.db'}"
+    if uri.startswith("sqlite:///") and uri not in _opened:
+        _open_sqlite(uri)
+    return uri
+
+
+def _open_sqlite(uri: str) -> None:
+    """Open the SQLite store once with an exclusive lock on ``<db>.lock``: MLflow creates and
+    migrates a new store's schema on first open, and processes doing that at the same time
+    fail or leave it half-migrated."""
+    db = Path(uri[len("sqlite:///") :])
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with open(db.with_name(db.name + ".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            MlflowClient(uri).search_experiments(max_results=1)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    _opened.add(uri)
 
 
 def artifact_root(cfg: DictConfig) -> str | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import mlflow
 import pytest
@@ -111,3 +112,27 @@ def test_latest_matching_tune_run_is_found(compose: Callable[..., DictConfig]) -
     assert run.info.run_id == ids[-1] and gains == {"a0": 200.0}
     run, gains = tracking.tuned_gains(cfg, run_id=ids[0])
     assert gains == {"a0": 100.0}
+
+
+def test_four_processes_racing_on_a_fresh_store_all_finish(tmp_path: Path) -> None:
+    """MLflow creates a new SQLite store's schema on first open; processes doing it at once
+    used to fail inside the migration and could leave the store half-migrated."""
+    import subprocess
+    import sys
+
+    from mlflow.tracking import MlflowClient
+
+    runs = tmp_path / "runs"
+    command = [sys.executable, "-m", "armexp", "simulate", "scenario=hold",
+               "scenario.duration=0.05", f"tracking.runs_dir={runs}"]  # fmt: skip
+    procs = [
+        subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for _ in range(4)
+    ]
+    outputs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0] * 4, outputs
+    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    runs_found = client.search_runs([exp.experiment_id])
+    assert len(runs_found) == 4 and {r.info.status for r in runs_found} == {"FINISHED"}
