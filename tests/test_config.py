@@ -107,6 +107,16 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.lr_final=-0.001"], ["agent.lr_final=-0.001", "> 0, or null"]),
         (["agent.average_tail=1.5"], ["agent.average_tail=1.5", "[0.0, 1.0]"]),
         (["train.keep_best=true"], ["train.keep_best=True", "train.eval_every=0"]),
+        # Issue 18's probes: each used to run and fail with a traceback or go through silently.
+        (["agent.device=foo"], ["agent.device='foo'", "cpu, auto, mps, cuda"]),
+        (["agent.ent_coef=abc"], ["agent.ent_coef='abc'", "'auto'"]),
+        (["train.torch_threads=-2"], ["train.torch_threads=-2", "≥ 1, or null"]),
+        (["tracking.experiment=''"], ["tracking.experiment=''", "non-empty"]),
+        (["controller.gains.a0=inf"], ["controller.gains.a0=inf", "> 0"]),
+        (["agent.max_env_steps=-5"], ["agent.max_env_steps=-5", "≥ 1, or null"]),
+        (["agent.max_minutes=-1"], ["agent.max_minutes=-1", "> 0, or null"]),
+        (["report.fig6_task=z"], ["report.fig6_task='z'", "a, b, c, d"]),
+        (["tuner.n_iterations=0"], ["tuner.n_iterations=0", "≥ 1"]),
     ],
 )
 def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:

@@ -27,7 +27,8 @@ class Check:
 
 
 def _num(x: Any) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool) and not math.isnan(x)
+    """A finite number (a gain, a budget or a length of inf says nothing usable)."""
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def positive() -> Check:
@@ -48,6 +49,13 @@ def between(lo: float, hi: float, *, lo_open: bool = False) -> Check:
 
 def at_least(lo: float) -> Check:
     return Check(lambda v: _num(v) and v >= lo, f"it must be ≥ {lo}")
+
+
+def matches(pattern: str, allowed: str) -> Check:
+    """A string that matches ``pattern`` in full."""
+    import re
+
+    return Check(lambda v: isinstance(v, str) and re.fullmatch(pattern, v) is not None, allowed)
 
 
 def one_of(*choices: str) -> Check:

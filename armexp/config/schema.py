@@ -18,6 +18,7 @@ from armexp.config.checks import (
     between,
     checked,
     each,
+    matches,
     nonnegative,
     one_of,
     or_null,
@@ -158,7 +159,7 @@ class ObjectiveConfig:
 class TunerConfig:
     name: str = MISSING
     n_nests: int = checked(15, at_least(2))
-    n_iterations: int = checked(200, at_least(0))
+    n_iterations: int = checked(200, at_least(1))
     pa: float = checked(0.25, between(0.0, 1.0))
     beta: float = checked(1.5, between(0.0, 2.0, lo_open=True))
     step_scale: float = checked(0.01, _pos)
@@ -191,7 +192,13 @@ class AgentConfig:
     episodes: int = checked(20000, at_least(1))
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))
-    ent_coef: str = "auto"
+    ent_coef: str = checked(
+        "auto",
+        matches(
+            r"auto(_\d+(\.\d*)?([eE][-+]?\d+)?)?|\d+(\.\d*)?([eE][-+]?\d+)?",
+            "'auto', 'auto_<initial value>' or a number ≥ 0 (SB3's ent_coef)",
+        ),
+    )
     #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
     n_steps: int = checked(1, at_least(1))
     #: Share of each replayed batch given hindsight targets (`armexp.agents.relabel`; 0 = off).
@@ -220,9 +227,11 @@ class AgentConfig:
     n_envs: int = checked(1, at_least(1))
     vec_env: str = checked("dummy", one_of("dummy", "subproc"))
     #: Extra caps on the budget besides ``episodes`` (None: none): environment steps, minutes.
-    max_env_steps: int | None = None
-    max_minutes: float | None = None
-    device: str = "cpu"
+    max_env_steps: int | None = checked(None, or_null(at_least(1)))
+    max_minutes: float | None = checked(None, or_null(_pos))
+    device: str = checked(
+        "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
+    )
 
 
 # --------------------------------------------------------------------------------------- env
@@ -285,7 +294,7 @@ class TrackingConfig:
     """Where runs go. ``uri`` None means ``sqlite:///<runs_dir>/mlflow.db``."""
 
     uri: str | None = None
-    experiment: str = "armexp"
+    experiment: str = checked("armexp", matches(r".*\S.*", "a non-empty experiment name"))
     runs_dir: str = "runs"
     artifact_root: str | None = None
     #: Set by `armexp <stage> -m`: the sweep's parent run, which every job's run hangs under.
@@ -327,7 +336,7 @@ class TrainStageConfig:
     #: training time.
     keep_best: bool = False
     progress: bool = True
-    torch_threads: int | None = None
+    torch_threads: int | None = checked(None, or_null(at_least(1)))
 
 
 @dataclass
@@ -367,7 +376,7 @@ class ReportStageConfig:
     filter: str | None = None
     #: Experiment to read (None: ``tracking.experiment``).
     experiment: str | None = None
-    fig6_task: str = "a"
+    fig6_task: str = checked("a", one_of("a", "b", "c", "d"))
     #: The seeds the selection should hold (a study sets them): those without a FINISHED eval
     #: run are named as missing in the report.
     seeds: list[int] = field(default_factory=list)
