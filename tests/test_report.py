@@ -458,3 +458,25 @@ def test_a_failing_report_keeps_the_previous_one(
     assert leftovers == []
     monkeypatch.undo()
     assert _report(store, out) == 0  # an earlier report's folder is replaced
+
+
+def test_the_readmes_filter_example_runs_as_written(store: Path, tmp_path: Path) -> None:
+    """The README's report.filter line, through a real shell (its quoting is the point)."""
+    import subprocess
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    (line,) = [
+        line.split("#")[0].strip()
+        for line in readme.splitlines()
+        if line.startswith('armexp report "report.filter=')
+    ]
+    command = f"{line} tracking.runs_dir={store} report.out_dir={tmp_path / 'r'}"
+    import os
+    import sys
+
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    done = subprocess.run(
+        ["bash", "-c", command], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr
+    assert "eval runs matching params.seed = '0'" in done.stdout
