@@ -107,6 +107,20 @@ def split_args(args: Sequence[str]) -> tuple[list[str], list[str], bool, bool]:
     return flags, overrides, multirun, validate
 
 
+def _without_credentials(overrides: list[str]) -> list[str]:
+    """A password in ``tracking.uri`` is taken out before Hydra, MLflow params, configs and
+    printed lines see it (`armexp.tracking.keep_credentials_out`)."""
+    from armexp.tracking import keep_credentials_out
+
+    out = []
+    for override in overrides:
+        key, eq, value = override.partition("=")
+        if eq and key.lstrip("+~") == "tracking.uri":
+            override = f"{key}={keep_credentials_out(value)}"
+        out.append(override)
+    return out
+
+
 def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     """``controller.gains=<preset>`` (or ``controller.gains.a0=…``) on a train command means
     "train with these gains", not "with a tune run's": add ``train.gains=config`` unless the
@@ -159,6 +173,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     flags, overrides, multirun, validate = split_args(args)
     overrides = imply_gains_source(stage, overrides)
+    overrides = _without_credentials(overrides)
     if validate:
         try:
             precheck(overrides, multirun)

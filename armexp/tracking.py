@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
+from urllib.parse import unquote, urlsplit, urlunsplit
 
 import mlflow
 from mlflow.entities import Run
@@ -55,6 +56,9 @@ STAGE_INPUTS: dict[str, tuple[str, ...]] = {
              "eval.adaptive_gains", "controller.gains", "eval.controllers", "eval.paper_tasks",
              "eval.deterministic", "eval.initial_offset", "eval.convergence_window"),
 }  # fmt: skip
+#: What a hidden password is shown as; `store_uri` restores it from SECRET_URI_ENV.
+HIDDEN = "***"
+SECRET_URI_ENV = "ARMEXP_TRACKING_URI"
 _parents: list[str] = []
 #: SQLite stores this process has opened (created and migrated under a lock).
 _opened: set[str] = set()
@@ -68,11 +72,47 @@ for _noisy in ("alembic", "mlflow.store.db.utils"):
     logging.getLogger(_noisy).setLevel(logging.WARNING)
 
 
+def hide_password(uri: str) -> str:
+    """``uri`` with the password of its user info shown as ``***`` (unchanged without one)."""
+    parts = urlsplit(uri)
+    if parts.password is None:
+        return uri
+    host = parts.netloc.rpartition("@")[2]
+    return urlunsplit(parts._replace(netloc=f"{parts.username}:{HIDDEN}@{host}"))
+
+
+def keep_credentials_out(uri: str) -> str:
+    """The form of a ``tracking.uri`` that may be logged, printed and written to Hydra's folders.
+
+    HTTP(S): the user and password go to MLflow's ``MLFLOW_TRACKING_USERNAME`` /
+    ``MLFLOW_TRACKING_PASSWORD`` and the URI loses them. Other schemes (a database URI) need them
+    in the URI: the URI is kept in ``ARMEXP_TRACKING_URI`` for this process and its children and
+    logged with the password as ``***`` (`store_uri` puts it back)."""
+    parts = urlsplit(uri)
+    if parts.password is None:
+        return uri
+    if parts.scheme in ("http", "https"):
+        os.environ["MLFLOW_TRACKING_USERNAME"] = unquote(parts.username or "")
+        os.environ["MLFLOW_TRACKING_PASSWORD"] = unquote(parts.password)
+        return urlunsplit(parts._replace(netloc=parts.netloc.rpartition("@")[2]))
+    os.environ[SECRET_URI_ENV] = uri
+    return hide_password(uri)
+
+
 def store_uri(cfg: DictConfig) -> str:
     """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``; a
     SQLite store is created (or migrated) under a lock the first time this process uses it."""
     if cfg.tracking.uri:
         uri = str(cfg.tracking.uri)
+        if f":{HIDDEN}@" in uri:
+            real = os.environ.get(SECRET_URI_ENV, "")
+            if hide_password(real) != uri:
+                raise ConfigError(
+                    f"tracking.uri={uri} is not allowed here: its password is hidden and this "
+                    f"process was not given it ({SECRET_URI_ENV}); pass tracking.uri with the "
+                    "password on the armexp command line."
+                )
+            uri = real
     else:
         runs = Path(cfg.tracking.runs_dir).resolve()
         runs.mkdir(parents=True, exist_ok=True)

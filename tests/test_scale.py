@@ -224,3 +224,51 @@ def test_signal_during_train_leaves_killed_run_with_checkpoint_and_resume_finish
     assert done.info.run_id == run.info.run_id and done.info.status == "FINISHED"
     assert done.data.tags["armexp.resumed_from_step"] == str(saved)
     assert done.data.metrics["final/env_steps"] == 3000
+
+
+def test_a_password_in_the_tracking_uri_is_nowhere_in_the_runs(
+    mlflow_server: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Not in params, artifacts, printed lines or Hydra's folders; MLflow still gets it."""
+    for name in ("MLFLOW_TRACKING_USERNAME", "MLFLOW_TRACKING_PASSWORD", "ARMEXP_TRACKING_URI"):
+        monkeypatch.setenv(name, "")  # restored after the test
+    secret = "s3cr3t-pw"
+    uri = mlflow_server.replace("http://", f"http://alice:{secret}@")
+    runs = tmp_path / "runs"
+    where = ["tracking=server", f"tracking.uri={uri}", f"tracking.runs_dir={runs}"]
+    assert main(["simulate", "scenario=hold", "scenario.duration=0.05", *where]) == 0
+    printed = capsys.readouterr()
+    assert secret not in printed.out + printed.err
+    (run,) = _search(mlflow_server, "simulate")
+    assert run.info.status == "FINISHED"
+    assert run.data.params["tracking.uri"] == mlflow_server
+    assert all(secret not in v for v in [*run.data.params.values(), *run.data.tags.values()])
+    config = MlflowClient(mlflow_server).download_artifacts(
+        run.info.run_id, "config.yaml", str(tmp_path)
+    )
+    assert secret not in Path(config).read_text()
+    written = [p for p in runs.rglob("*") if p.is_file()]
+    assert written and all(secret not in p.read_text(errors="ignore") for p in written)
+    import os
+
+    assert os.environ["MLFLOW_TRACKING_PASSWORD"] == secret  # MLflow's own way to send it
+
+
+def test_a_database_uri_keeps_its_password_out_of_the_logs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from armexp import tracking
+
+    monkeypatch.setenv("ARMEXP_TRACKING_URI", "")
+    shown = tracking.keep_credentials_out("postgresql://bob:pa55@db.example:5432/mlflow")
+    assert shown == "postgresql://bob:***@db.example:5432/mlflow"
+    from armexp.config import compose_config
+
+    cfg = compose_config(["tracking=server", f"tracking.uri={shown}"])
+    assert tracking.store_uri(cfg) == "postgresql://bob:pa55@db.example:5432/mlflow"
+    monkeypatch.setenv("ARMEXP_TRACKING_URI", "")
+    with pytest.raises(tracking.ConfigError, match="its password is hidden"):
+        tracking.store_uri(cfg)
