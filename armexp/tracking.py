@@ -19,7 +19,9 @@ import json
 import logging
 import os
 import subprocess
+import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -43,6 +45,11 @@ STAGE_TAG = "armexp.stage"
 COMMIT_TAG = "armexp.git_commit"
 ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
+HEARTBEAT_TAG = "armexp.heartbeat"
+#: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
+#: taken as one whose process died.
+HEARTBEAT_S = 30.0
+STALE_S = 150.0
 INPUTS_TAG = "armexp.inputs_hash"
 PARENT_TAG = "mlflow.parentRunId"
 #: The config a stage's result depends on; `inputs_hash` of these is tagged on every run, and
@@ -184,7 +191,9 @@ def setup(cfg: DictConfig) -> str:
                 raise
             return str(exp.experiment_id)
 
-    return retry(get_or_create)
+    experiment_id = retry(get_or_create)
+    close_orphans(client, experiment_id)
+    return experiment_id
 
 
 def flatten(cfg: DictConfig | Mapping[str, Any]) -> dict[str, str]:
@@ -246,6 +255,72 @@ def parent(run_id: str) -> Iterator[None]:
         _parents.pop()
 
 
+class Heartbeat:
+    """Writes the time into the run's ``armexp.heartbeat`` tag every `HEARTBEAT_S` seconds
+    while the stage runs, so another process can tell a live run from one whose process died
+    (`is_alive`, `close_orphans`)."""
+
+    def __init__(self, run_id: str, uri: str) -> None:
+        self.run_id, self.client = run_id, MlflowClient(uri)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name="armexp-heartbeat", daemon=True)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(HEARTBEAT_S):
+            try:
+                self.client.set_tag(self.run_id, HEARTBEAT_TAG, f"{time.time():.0f}")
+            except Exception as exc:  # a busy store: the next beat tries again
+                log.debug("heartbeat of %s not written: %s", self.run_id, exc)
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def heartbeat_age(run: Run) -> float:
+    """Seconds since the run's process last reported (its start when it never did)."""
+    beat = run.data.tags.get(HEARTBEAT_TAG)
+    last = float(beat) if beat else run.info.start_time / 1000.0
+    return time.time() - last
+
+
+def is_alive(run: Run) -> bool:
+    """A RUNNING run whose process reported within `STALE_S`."""
+    return run.info.status == "RUNNING" and heartbeat_age(run) < STALE_S
+
+
+def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
+    """Mark RUNNING runs whose process stopped reporting (killed, lost power) FAILED, with
+    ``armexp.error`` saying so, and name each on stderr; returns their ids. A train run among them
+    can still be continued with ``train.resume``."""
+    found = []
+    for run in client.search_runs(
+        [experiment_id], "attributes.status = 'RUNNING'", max_results=1000
+    ):
+        if STAGE_TAG not in run.data.tags or is_alive(run):
+            continue
+        age = heartbeat_age(run)
+        message = f"process stopped: no heartbeat for {age:.0f} s"
+        try:
+            client.set_tag(run.info.run_id, ERROR_TAG, message)
+            client.set_terminated(run.info.run_id, "FAILED")
+        except Exception:
+            continue  # another process closes it
+        stage = run.data.tags[STAGE_TAG]
+        print(
+            f"armexp: {stage} run {run.info.run_id} was RUNNING but its process stopped "
+            f"{age:.0f} s ago; marked FAILED"
+            + (f" (continue it with train.resume={run.info.run_id})" if stage == "train" else ""),
+            file=sys.stderr,
+        )
+        found.append(run.info.run_id)
+    return found
+
+
 @contextmanager
 def stage_run(
     cfg: DictConfig,
@@ -260,7 +335,7 @@ def stage_run(
     ``resume_run_id`` reopens an existing run (its params and config stay as first logged).
     """
     experiment_id = setup(cfg)
-    tags = {STAGE_TAG: stage, **(extra_tags or {})}
+    tags = {STAGE_TAG: stage, HEARTBEAT_TAG: f"{time.time():.0f}", **(extra_tags or {})}
     commit = git_commit()
     if commit:
         tags[COMMIT_TAG] = commit
@@ -295,7 +370,8 @@ def stage_run(
             for i in range(0, len(items), 100):
                 retry(lambda chunk=dict(items[i : i + 100]): mlflow.log_params(chunk))  # type: ignore[misc]
             mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
-        yield run
+        with Heartbeat(run.info.run_id, store_uri(cfg)):
+            yield run
     except KeyboardInterrupt:
         retry(lambda: mlflow.set_tag(ERROR_TAG, "interrupted"))
         _end_run(run.info.run_id, "KILLED")

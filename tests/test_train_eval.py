@@ -159,16 +159,31 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
         _download(runs_dir, run.info.run_id, "checkpoint/state.json", tmp_path).read_text()
     )
     assert state["num_timesteps"] == 450
+    assert len(state["recent"]) == state["episodes"] > 0  # the rolling window is saved
+    assert run.data.tags["armexp.error"] == "interrupted"
     monkeypatch.setattr(EpisodeStats, "_on_step", original)
-    assert main(["train", f"train.resume={run.info.run_id}", where]) == 0
+    # Anything but the budget would be ignored by a resume: refused, nothing run.
+    assert main(["train", f"train.resume={run.info.run_id}", "agent.gamma=0.5", where]) == 2
+    assert _runs(runs_dir, "train")[0].info.status == "KILLED"
+    # A larger budget is applied.
+    rc = main(["train", f"train.resume={run.info.run_id}", "agent.max_env_steps=700", where])
+    assert rc == 0
     (resumed,) = _runs(runs_dir, "train")
     assert resumed.info.run_id == run.info.run_id and resumed.info.status == "FINISHED"
     assert resumed.data.tags["armexp.resumed_from_step"] == "450"
-    assert resumed.data.metrics["final/env_steps"] == 600
+    assert "armexp.error" not in resumed.data.tags
+    assert resumed.data.metrics["final/env_steps"] == 700
     final = json.loads(
         _download(runs_dir, run.info.run_id, "model/state.json", tmp_path / "f").read_text()
     )
-    assert final["num_timesteps"] == 600
+    assert final["num_timesteps"] == 700
+    # The success rate over the last 100 episodes counts the episodes before the interruption.
+    client = _client(runs_dir)
+    successes = [m.value for m in client.get_metric_history(run.info.run_id, "episode/success")]
+    assert len(final["recent"]) == min(len(successes), 100)
+    assert resumed.data.metrics["final/success_rate_100"] == pytest.approx(
+        float(np.mean(successes[-100:]))
+    )
     steps = [
         m.step for m in _client(runs_dir).get_metric_history(run.info.run_id, "episode/length")
     ]

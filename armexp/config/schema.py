@@ -336,7 +336,10 @@ class TrainStageConfig:
     #: training time.
     keep_best: bool = False
     progress: bool = True
-    torch_threads: int | None = checked(None, or_null(at_least(1)))
+    #: Torch threads of the training process (null: torch's default, one per core). One by
+    #: default: on 2 cores one thread trains faster than two even alone, and two jobs with two
+    #: threads each fall to about a quarter of that speed (benchmarks/contention.py).
+    torch_threads: int | None = checked(1, or_null(at_least(1)))
 
 
 @dataclass

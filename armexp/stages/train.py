@@ -119,9 +119,15 @@ def run(cfg: DictConfig) -> dict[str, float]:
 def resume(cfg: DictConfig) -> dict[str, float]:
     """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run."""
     run_id = str(cfg.train.resume)
-    tracking.find_stage_run(
+    found = tracking.find_stage_run(
         cfg, "train", run_id=run_id, key="train.resume", statuses=("KILLED", "FAILED", "RUNNING")
     )
+    if tracking.is_alive(found):
+        raise ConfigError(
+            f"train.resume={run_id} is not allowed: that run is still training in another "
+            f"process (its last heartbeat was {tracking.heartbeat_age(found):.0f} s ago); wait "
+            "for it to end or stop it first."
+        )
     try:
         state_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{STATE_FILE}", cfg)
     except Exception:
@@ -135,6 +141,7 @@ def resume(cfg: DictConfig) -> dict[str, float]:
     assert isinstance(original, DictConfig)
     original.tracking = cfg.tracking
     original.train.progress = cfg.train.progress
+    _apply_resume_overrides(original, cfg, run_id)
     gains = yaml.safe_load(tracking.download_artifact(run_id, "gains.yaml", cfg).read_text())
     print(f"train: resuming run {run_id} from step {state['num_timesteps']}")
     with tracking.stage_run(
@@ -143,7 +150,34 @@ def resume(cfg: DictConfig) -> dict[str, float]:
         resume_run_id=run_id,
         extra_tags={RESUMED_TAG: str(state["num_timesteps"])},
     ):
+        if tracking.ERROR_TAG in found.data.tags:
+            # The interruption that stopped it is over: the run ends with its own new status.
+            tracking.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, tracking.ERROR_TAG))
         return _learn(original, gains, run_id, model_path=str(model_path), state=state)
+
+
+#: Keys a resume may change: where it logs, how it shows progress, and the budget to extend.
+RESUME_KEYS = ("train.resume", "train.progress", "train.torch_threads", "tracking.",
+               "agent.max_env_steps", "agent.max_minutes", "agent.episodes", "hydra.")  # fmt: skip
+
+
+def _apply_resume_overrides(original: DictConfig, cfg: DictConfig, run_id: str) -> None:
+    """A resume continues the run with its own config; budget overrides extend it, anything
+    else on the command line would be ignored, so it is refused."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return
+    for override in HydraConfig.get().overrides.task:
+        key = override.partition("=")[0].lstrip("+~")
+        if not key.startswith(RESUME_KEYS):
+            raise ConfigError(
+                f"{override} is not allowed with train.resume={run_id}: a resumed run keeps the "
+                "config it started with; only its budget (agent.max_env_steps, "
+                "agent.max_minutes, agent.episodes) and tracking.* may change."
+            )
+        if key.startswith("agent."):
+            OmegaConf.update(original, key, OmegaConf.select(cfg, key))
 
 
 def _learn(
@@ -177,6 +211,7 @@ def _learn(
     total = step_budget(cfg)
     stats = EpisodeStats(run_id, int(tr.log_every), start_episode=int(state.get("episodes", 0)))
     stats.wall_offset = float(state.get("wall_s", 0.0))
+    stats.recent.extend((bool(s), bool(c)) for s, c in state.get("recent", []))
     minutes = agent.max_minutes
     budget = Budget(
         stats, int(agent.episodes), total, None if minutes is None else float(minutes) * 60.0
@@ -192,6 +227,8 @@ def _learn(
             "num_timesteps": int(model.num_timesteps),
             "episodes": stats.episodes,
             "wall_s": stats.wall(),
+            # The rolling window of the last episodes, so a resumed run's rates go on from it.
+            "recent": [[bool(s), bool(c)] for s, c in stats.recent],
         }
 
     cloning = float(agent.bc_weight) > 0

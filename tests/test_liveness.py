@@ -1,0 +1,81 @@
+"""A run's process reports a heartbeat: a live run cannot be resumed from elsewhere, and a run
+whose process died is closed (FAILED, said on stderr) by the next command on the store."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mlflow.tracking import MlflowClient
+
+from armexp import tracking
+from armexp.cli import main
+from tests.helpers import SMALL_TRAIN
+
+
+def _running_train(runs: Path) -> tuple[subprocess.Popen[str], Any]:
+    """A train run in another process, long enough to be caught RUNNING."""
+    command = [sys.executable, "-m", "armexp", "train", "controller.gains=paper", *SMALL_TRAIN,
+               "agent.max_env_steps=100000", f"tracking.runs_dir={runs}"]  # fmt: skip
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+    for _ in range(240):
+        exp = client.get_experiment_by_name("armexp") if (runs / "mlflow.db").exists() else None
+        found = (
+            client.search_runs([exp.experiment_id], "attributes.status = 'RUNNING'") if exp else []
+        )
+        if found:
+            return proc, found[0]
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        time.sleep(0.5)
+    proc.kill()
+    pytest.fail("the train run did not start within 120 s")
+
+
+def test_resuming_a_run_that_is_still_training_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs = tmp_path / "runs"
+    proc, run = _running_train(runs)
+    try:
+        rc = main(["train", f"train.resume={run.info.run_id}", f"tracking.runs_dir={runs}"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1
+        assert f"train.resume={run.info.run_id} is not allowed" in err[0]
+        assert "still training in another process" in err[0]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+    assert client.get_run(run.info.run_id).info.status == "KILLED"
+
+
+def test_a_run_whose_process_died_is_closed_by_the_next_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    runs = tmp_path / "runs"
+    proc, run = _running_train(runs)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=60)
+    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+    assert client.get_run(run.info.run_id).info.status == "RUNNING"  # nobody could end it
+    # No heartbeat for STALE_S means dead; the test does not wait that long.
+    monkeypatch.setattr(tracking, "STALE_S", 0.0)
+    assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
+                 f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    assert f"train run {run.info.run_id} was RUNNING but its process stopped" in err
+    assert f"train.resume={run.info.run_id}" in err
+    closed = client.get_run(run.info.run_id)
+    assert closed.info.status == "FAILED"
+    assert "no heartbeat" in closed.data.tags["armexp.error"]
+    live = [
+        r for r in client.search_runs([closed.info.experiment_id]) if r.info.status == "RUNNING"
+    ]
+    assert live == []
