@@ -9,6 +9,7 @@ traceback.
 
 from __future__ import annotations
 
+import errno
 import importlib
 import os
 import sys
@@ -198,6 +199,15 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         except ConfigError as exc:  # e.g. a missing upstream run found only at run time
             print(f"armexp {stage}: {exc}", file=sys.stderr)
             raise SystemExit(EXIT_USAGE) from None
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            print(
+                f"armexp {stage}: the disk is full ({exc.strerror}: {exc.filename or 'a write'}); "
+                "the run is marked FAILED with what it logged before; free space and run again.",
+                file=sys.stderr,
+            )
+            raise SystemExit(1) from None
 
     register_schemas()
     # Hydra's parser wants the overrides as one contiguous block after the flags.

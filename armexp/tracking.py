@@ -373,19 +373,27 @@ def stage_run(
         with Heartbeat(run.info.run_id, store_uri(cfg)):
             yield run
     except KeyboardInterrupt:
-        retry(lambda: mlflow.set_tag(ERROR_TAG, "interrupted"))
+        _note_error("interrupted")
         _end_run(run.info.run_id, "KILLED")
         raise
     except BaseException as exc:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             _end_run(run.info.run_id, "FINISHED")
             raise
-        message = f"{type(exc).__name__}: {exc}"[:5000]
-        retry(lambda: mlflow.set_tag(ERROR_TAG, message))
+        _note_error(f"{type(exc).__name__}: {exc}"[:5000])
         _end_run(run.info.run_id, "FAILED")
         raise
     else:
         _end_run(run.info.run_id, "FINISHED")
+
+
+def _note_error(message: str) -> None:
+    """The error tag, best effort: when the failure is the store's (a full disk), the status
+    write that follows matters more than this one."""
+    try:
+        retry(lambda: mlflow.set_tag(ERROR_TAG, message))
+    except Exception as exc:
+        log.warning("could not record the error on the run: %s", exc)
 
 
 def _end_run(run_id: str, status: str) -> None:

@@ -85,10 +85,16 @@ def test_pipeline_reuse_skips_stages_whose_inputs_match(pipeline_store: Path) ->
 
 
 def test_failing_stage_fails_the_parent_and_names_itself(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from armexp.stages import train
+
+    def bogus(*args: Any, **kwargs: Any) -> Any:
+        raise RuntimeError("bogus value met while training (injected)")
+
+    monkeypatch.setattr(train, "_learn", bogus)
     runs = tmp_path / "runs"
-    assert main(["pipeline", *SMALL, "agent.ent_coef=bogus", f"tracking.runs_dir={runs}"]) == 1
+    assert main(["pipeline", *SMALL, f"tracking.runs_dir={runs}"]) == 1
     assert "pipeline: train failed" in capsys.readouterr().out
     (parent,) = _runs(runs, "pipeline")
     assert parent.info.status == "FAILED"

@@ -239,3 +239,24 @@ def test_parallel_environments_log_one_row_per_episode(runs_dir: Path) -> None:
     client = _client(runs_dir)
     for key in ("episode/length", "episode/success", "episode/collision", "episode/reward"):
         assert len(client.get_metric_history(run.info.run_id, key)) == episodes, key
+
+
+def test_a_full_disk_fails_the_run_with_one_sentence(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno
+
+    from armexp.stages import train
+
+    def full(*args: Any, **kwargs: Any) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", "model/model.zip")
+
+    monkeypatch.setattr(train, "log_model", full)  # the fault: the final model's write
+    where = f"tracking.runs_dir={runs_dir}"
+    assert main(["train", "controller.gains=paper", *SMALL_TRAIN, where]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the disk is full (No space left on device" in err[0]
+    (run,) = _runs(runs_dir, "train")
+    assert run.info.status == "FAILED"
+    assert "No space left on device" in run.data.tags["armexp.error"]
+    assert run.data.metrics["rollout/episodes"] > 0  # what it logged before is kept
