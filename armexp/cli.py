@@ -272,6 +272,23 @@ def _close_sweep(sweep: tuple[Any, str], status: str) -> None:
     from armexp import tracking
 
     client, sweep_id = sweep
+    if status != "FINISHED":
+        # Jobs stopped with the sweep (a worker killed before it could end its run) would stay
+        # RUNNING: they end as the sweep did.
+        experiment_id = client.get_run(sweep_id).info.experiment_id
+        running = client.search_runs(
+            [experiment_id],
+            f"tags.`{tracking.SWEEP_TAG}` = '{sweep_id}' and attributes.status = 'RUNNING'",
+            max_results=1000,
+        )
+        for run in running:
+            run_id = str(run.info.run_id)
+
+            def stop(rid: str = run_id) -> None:
+                client.set_tag(rid, tracking.ERROR_TAG, "sweep stopped")
+                client.set_terminated(rid, "KILLED")
+
+            tracking.retry(stop)
     tracking.retry(lambda: client.set_terminated(sweep_id, status))
 
 

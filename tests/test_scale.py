@@ -272,3 +272,35 @@ def test_a_database_uri_keeps_its_password_out_of_the_logs(
     monkeypatch.setenv("ARMEXP_TRACKING_URI", "")
     with pytest.raises(tracking.ConfigError, match="its password is hidden"):
         tracking.store_uri(cfg)
+
+
+def test_sigint_to_a_joblib_sweep_leaves_no_running_job(tmp_path: Path) -> None:
+    from armexp import tracking
+    from armexp.config import compose_config
+
+    runs = tmp_path / "runs"
+    # The store made first, so this test's look-ups do not race the sweep's creation of it.
+    uri = tracking.store_uri(compose_config([f"tracking.runs_dir={runs}"]))
+    command = [sys.executable, "-m", "armexp", "train", "-m", "seed=0,1", "controller.gains=paper",
+               *SMALL_TRAIN, "agent.max_env_steps=100000", "hydra/launcher=joblib",
+               "hydra.launcher.n_jobs=2", f"tracking.runs_dir={runs}"]  # fmt: skip
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(360):
+            try:
+                if len(_search(uri, "train")) == 2:
+                    break
+            except AssertionError:  # no experiment yet
+                pass
+            assert proc.poll() is None
+            time.sleep(0.5)
+        else:
+            pytest.fail("the sweep's two train runs did not start within 180 s")
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=120)
+    finally:
+        proc.kill()
+    jobs = _search(uri, "train")
+    (sweep,) = _search(uri, "sweep")
+    assert sweep.info.status == "KILLED"
+    assert [r.info.status for r in jobs] == ["KILLED", "KILLED"]
