@@ -23,6 +23,8 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
+import urllib.request
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -46,6 +48,8 @@ COMMIT_TAG = "armexp.git_commit"
 ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
 HEARTBEAT_TAG = "armexp.heartbeat"
+#: Seconds to wait for a tracking server's first answer.
+PROBE_S = 10.0
 #: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
 #: taken as one whose process died.
 HEARTBEAT_S = 30.0
@@ -124,9 +128,28 @@ def store_uri(cfg: DictConfig) -> str:
         runs = Path(cfg.tracking.runs_dir).resolve()
         runs.mkdir(parents=True, exist_ok=True)
         uri = f"sqlite:///{runs / 'mlflow.db'}"
-    if uri.startswith("sqlite:///") and uri not in _opened:
-        _open_sqlite(uri)
+    if uri not in _opened:
+        if uri.startswith("sqlite:///"):
+            _open_sqlite(uri)
+        elif uri.startswith(("http://", "https://")):
+            _probe_server(uri)
     return uri
+
+
+def _probe_server(uri: str) -> None:
+    """Ask the server's ``/health`` once per process, so an address with no server behind it
+    is one sentence now instead of MLflow's minutes of retries."""
+    try:
+        urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=PROBE_S).close()
+    except urllib.error.HTTPError:
+        pass  # it answered
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise ConfigError(
+            f"tracking.uri={hide_password(uri)} is not allowed: no MLflow server answers there "
+            f"({reason}); start one (README, Scaling out) or correct the address."
+        ) from None
+    _opened.add(uri)
 
 
 def _open_sqlite(uri: str) -> None:

@@ -117,6 +117,8 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.max_minutes=-1"], ["agent.max_minutes=-1", "> 0, or null"]),
         (["report.fig6_task=z"], ["report.fig6_task='z'", "a, b, c, d"]),
         (["tuner.n_iterations=0"], ["tuner.n_iterations=0", "≥ 1"]),
+        (["controller.gains=nonexistent"], ["controller.gains=nonexistent", "one of: paper"]),
+        (["+controller.gains.zz=1"], ["controller.gains.zz is not a config key", "a0, a1"]),
     ],
 )
 def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:

@@ -284,7 +284,16 @@ def test_sigint_to_a_joblib_sweep_leaves_no_running_job(tmp_path: Path) -> None:
     command = [sys.executable, "-m", "armexp", "train", "-m", "seed=0,1", "controller.gains=paper",
                *SMALL_TRAIN, "agent.max_env_steps=100000", "hydra/launcher=joblib",
                "hydra.launcher.n_jobs=2", f"tracking.runs_dir={runs}"]  # fmt: skip
-    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        command,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        # Its own process group (to clean up workers), with Ctrl-C's default action even when
+        # this test runs where SIGINT is ignored (a background job), as a terminal would give.
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     try:
         for _ in range(360):
             try:
@@ -299,8 +308,20 @@ def test_sigint_to_a_joblib_sweep_leaves_no_running_job(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=120)
     finally:
-        proc.kill()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
     jobs = _search(uri, "train")
     (sweep,) = _search(uri, "sweep")
     assert sweep.info.status == "KILLED"
     assert [r.info.status for r in jobs] == ["KILLED", "KILLED"]
+
+
+def test_an_unreachable_tracking_server_is_one_sentence(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    url = f"http://127.0.0.1:{_free_port()}"  # nothing listens there
+    where = [f"tracking.uri={url}", f"tracking.runs_dir={tmp_path}"]
+    rc = main(["simulate", "tracking=server", *where])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert f"tracking.uri={url} is not allowed: no MLflow server answers there" in err[0]

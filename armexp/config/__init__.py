@@ -74,8 +74,14 @@ def normalize_overrides(overrides: Sequence[str]) -> list[str]:
         key, eq, value = o.partition("=")
         group = key.replace(".", "/")
         nested_group = eq and "." in key and not key.startswith(("+", "~", "hydra"))
-        if nested_group and value in group_options(group):
+        options = group_options(group) if nested_group else []
+        if options and value in options:
             o = f"{group}={value}"
+        elif options and re.fullmatch(r"[A-Za-z_][\w-]*", value):
+            # A bare name for a key that is a config group: a misspelt option.
+            raise ConfigError(
+                f"{key}={value} is not allowed: choose one of: {', '.join(sorted(options))}."
+            )
         out.append(o)
     return out
 
@@ -169,11 +175,21 @@ def _walk(node: Any, path: str) -> None:
             for f in dataclasses.fields(kind):
                 if "check" in f.metadata:
                     checks[f.name] = f.metadata["check"]
+        known: set[str] = set()
+        if kind is not None and dataclasses.is_dataclass(kind):
+            known = {f.name for f in dataclasses.fields(kind)}
         for key in node:
+            sub = f"{path}.{key!s}" if path else str(key)
+            if known and key not in known:
+                # A key added with `+` that no code reads would be silently ignored.
+                raise ConfigError(
+                    f"{sub} is not a config key: {path or 'the root'} has "
+                    + ", ".join(sorted(known))
+                    + "."
+                )
             if OmegaConf.is_missing(node, key):
                 continue
             child = node[key]
-            sub = f"{path}.{key!s}" if path else str(key)
             if key in checks:
                 plain = OmegaConf.to_container(child) if _is_container(child) else child
                 if not checks[key](plain):
