@@ -9,10 +9,12 @@ traceback.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import importlib
 import os
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -225,8 +227,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         # Through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
         sys.argv.insert(-1, f"tracking.sweep_run={sweep[1]}")
     status = "FAILED"
+    beat = contextlib.nullcontext() if sweep is None else sweep[2]
     try:
-        app()
+        with beat:  # the sweep run's heartbeat, while its jobs run
+            app()
         status = "FINISHED"
     except SystemExit as exc:  # a user error found at run time (exit 2), or Hydra's own exit
         code = exc.code
@@ -243,7 +247,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     return 0
 
 
-def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str]:
+def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str, Any]:
     """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
     reaches every job as ``tracking.sweep_run``."""
     from mlflow.tracking import MlflowClient
@@ -259,19 +263,23 @@ def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str]:
         lambda: client.create_run(
             experiment_id,
             run_name=f"sweep-{stage}",
-            tags={tracking.STAGE_TAG: "sweep", "armexp.sweep_stage": stage},
+            tags={
+                tracking.STAGE_TAG: "sweep",
+                "armexp.sweep_stage": stage,
+                tracking.HEARTBEAT_TAG: f"{time.time():.0f}",
+            },
         )
     )
     sweep_id = run.info.run_id
     client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
     print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
-    return client, sweep_id
+    return client, sweep_id, tracking.Heartbeat(sweep_id, tracking.store_uri(cfg))
 
 
-def _close_sweep(sweep: tuple[Any, str], status: str) -> None:
+def _close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
     from armexp import tracking
 
-    client, sweep_id = sweep
+    client, sweep_id, _ = sweep
     if status != "FINISHED":
         # Jobs stopped with the sweep (a worker killed before it could end its run) would stay
         # RUNNING: they end as the sweep did.

@@ -79,3 +79,30 @@ def test_a_run_whose_process_died_is_closed_by_the_next_command(
         r for r in client.search_runs([closed.info.experiment_id]) if r.info.status == "RUNNING"
     ]
     assert live == []
+
+
+def test_a_live_sweep_and_its_pipeline_parents_are_not_taken_for_dead(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each job's start closes stale RUNNING runs; the sweep's own run, open for the whole
+    sweep, keeps its heartbeat and is not among them."""
+    from armexp.stages import simulate
+
+    monkeypatch.setattr(tracking, "HEARTBEAT_S", 0.1)
+    monkeypatch.setattr(tracking, "STALE_S", 1.0)
+    real = simulate.run
+
+    def slow(cfg: Any) -> Any:
+        time.sleep(1.5)  # longer than STALE_S: a sweep without a heartbeat would look dead
+        return real(cfg)
+
+    monkeypatch.setattr(simulate, "run", slow)
+    runs = tmp_path / "runs"
+    args = ["simulate", "-m", "seed=0,1,2", "scenario=hold", "scenario.duration=0.05"]
+    assert main([*args, f"tracking.runs_dir={runs}"]) == 0
+    assert "its process stopped" not in capsys.readouterr().err
+    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    statuses = [r.info.status for r in client.search_runs([exp.experiment_id])]
+    assert statuses == ["FINISHED"] * 4  # three jobs and the sweep
