@@ -137,14 +137,15 @@ def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     return overrides
 
 
-def sweep_combinations(overrides: Sequence[str], limit: int = 64) -> list[list[str]]:
-    """Every job's overrides of a basic sweep (at most ``limit``, enough to catch bad values)."""
+def sweep_combinations(overrides: Sequence[str]) -> list[list[str]]:
+    """Every job's overrides of a basic sweep: each is composed and checked before any runs
+    (tens of milliseconds a job, small beside the job itself)."""
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     parsed = OverridesParser.create().parse_overrides(list(overrides))
     batches = BasicSweeper.split_arguments(parsed, max_batch_size=None)
-    return [list(job) for batch in batches for job in batch][:limit]
+    return [list(job) for batch in batches for job in batch]
 
 
 def precheck(overrides: Sequence[str], multirun: bool) -> None:

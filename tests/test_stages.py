@@ -178,3 +178,13 @@ def test_tune_bad_bound_exits_2(runs_dir: Path, capsys: pytest.CaptureFixture[st
     assert main(["tune", "controller.bounds.r1=[2,1]", f"tracking.runs_dir={runs_dir}"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "controller.bounds.r1" in err and "lower bound" in err
+
+
+def test_a_bad_value_late_in_a_sweep_stops_it_before_any_job(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    values = ",".join([*(str(v) for v in range(1, 80)), "-1"])  # job 80 is the bad one
+    rc = main(["simulate", "-m", f"controller.gains.a0={values}", f"tracking.runs_dir={runs_dir}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "controller.gains.a0=-1" in err[0]
+    assert not (runs_dir / "mlflow.db").exists()  # no run, no store
