@@ -240,7 +240,14 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         return code
     except KeyboardInterrupt:
         status = "KILLED"
-        print(f"armexp {stage}: interrupted; the MLflow run is marked KILLED.", file=sys.stderr)
+        from armexp import tracking
+
+        started = tracking.last_run_id is not None or sweep is not None
+        print(
+            f"armexp {stage}: interrupted; "
+            + ("the MLflow run is marked KILLED." if started else "no run was started."),
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     finally:
         if sweep is not None:

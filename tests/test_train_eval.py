@@ -260,3 +260,26 @@ def test_a_full_disk_fails_the_run_with_one_sentence(
     assert run.info.status == "FAILED"
     assert "No space left on device" in run.data.tags["armexp.error"]
     assert run.data.metrics["rollout/episodes"] > 0  # what it logged before is kept
+
+
+def test_an_interrupted_eval_keeps_the_episodes_it_ran(
+    runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from armexp.stages import evaluate
+
+    where = f"tracking.runs_dir={runs_dir}"
+    assert main(["train", "controller.gains=paper", *SMALL_TRAIN, where]) == 0
+    real, calls = evaluate.rollout, []
+
+    def interrupted_later(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        if len(calls) == 7:  # tasks (a)-(c) and their offset runs done
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(evaluate, "rollout", interrupted_later)
+    assert main(["eval", "eval.pid_gains=config", "tasks.n_random=2", where]) == 130
+    (ev,) = _runs(runs_dir, "eval")
+    assert ev.info.status == "KILLED"
+    rows = pd.read_csv(_download(runs_dir, ev.info.run_id, "episodes.csv", tmp_path))
+    assert list(rows.task) == ["a", "b", "c"] and set(rows.controller) == {"adaptive"}

@@ -141,45 +141,49 @@ def run(cfg: DictConfig) -> dict[str, float]:
             )
         records = []
         summary: dict[str, float] = {}
-        for name in controllers:
-            label = LABELS[name]
-            env = ReachEnv(settings_from_config(train_cfg, name, gains[name]), record=True)
-            n = env.n
-            lengths = env.settings.plant.arm.lengths_array
-            threshold = env.settings.reach_threshold
-            for index, (task, options) in enumerate(_targets(cfg, env)):
-                episode = rollout(
-                    env, policy, options, seed=int(cfg.seed) + index,
-                    deterministic=bool(cfg.eval.deterministic),
-                )  # fmt: skip
-                metrics = episode_metrics(episode, n, lengths, threshold)
-                if not task.startswith("random_"):
-                    perturbed = _offset_run(cfg, env, policy, options, int(cfg.seed) + index)
-                    window = float(cfg.eval.convergence_window)
-                    metrics["convergence_time"] = settling_time(perturbed, n, window, episode)
-                    metrics["e1_settling_time"] = settling_time(perturbed, n, window)
-                    tracking.log_dataframe(
-                        pd.DataFrame(
-                            perturbed.rows, columns=[*trajectory_columns(n), "target_error"]
-                        ),
-                        f"{task}_offset.parquet",
-                        f"trajectories/{label}",
-                    )
-                records.append(
-                    {"controller": label, "task": task, "reason": episode.reason,
-                     "target_x": episode.target[0], "target_y": episode.target[1], **metrics}
-                )  # fmt: skip
-                if not task.startswith("random_"):
-                    mlflow.log_metrics(
-                        {f"{label}.{task}.{k}": v for k, v in metrics.items() if math.isfinite(v)}
-                    )
-                if not task.startswith("random_") or cfg.eval.random_trajectories:
-                    frame = pd.DataFrame(
-                        episode.rows, columns=[*trajectory_columns(n), "target_error"]
-                    )
-                    tracking.log_dataframe(frame, f"{task}.parquet", f"trajectories/{label}")
-            table = pd.DataFrame([r for r in records if r["controller"] == label])
-            summary.update(_aggregate(label, table))
+        try:
+            for name in controllers:
+                label = LABELS[name]
+                env = ReachEnv(settings_from_config(train_cfg, name, gains[name]), record=True)
+                n = env.n
+                lengths = env.settings.plant.arm.lengths_array
+                threshold = env.settings.reach_threshold
+                for index, (task, options) in enumerate(_targets(cfg, env)):
+                    episode = rollout(
+                        env, policy, options, seed=int(cfg.seed) + index,
+                        deterministic=bool(cfg.eval.deterministic),
+                    )  # fmt: skip
+                    metrics = episode_metrics(episode, n, lengths, threshold)
+                    if not task.startswith("random_"):
+                        perturbed = _offset_run(cfg, env, policy, options, int(cfg.seed) + index)
+                        window = float(cfg.eval.convergence_window)
+                        metrics["convergence_time"] = settling_time(perturbed, n, window, episode)
+                        metrics["e1_settling_time"] = settling_time(perturbed, n, window)
+                        tracking.log_dataframe(
+                            pd.DataFrame(
+                                perturbed.rows, columns=[*trajectory_columns(n), "target_error"]
+                            ),
+                            f"{task}_offset.parquet",
+                            f"trajectories/{label}",
+                        )
+                    records.append(
+                        {"controller": label, "task": task, "reason": episode.reason,
+                         "target_x": episode.target[0], "target_y": episode.target[1], **metrics}
+                    )  # fmt: skip
+                    if not task.startswith("random_"):
+                        finite = {k: v for k, v in metrics.items() if math.isfinite(v)}
+                        mlflow.log_metrics({f"{label}.{task}.{k}": v for k, v in finite.items()})
+                    if not task.startswith("random_") or cfg.eval.random_trajectories:
+                        frame = pd.DataFrame(
+                            episode.rows, columns=[*trajectory_columns(n), "target_error"]
+                        )
+                        tracking.log_dataframe(frame, f"{task}.parquet", f"trajectories/{label}")
+                table = pd.DataFrame([r for r in records if r["controller"] == label])
+                summary.update(_aggregate(label, table))
+        except BaseException:
+            if records:  # an interrupted or failed eval keeps the episodes it ran
+                tracking.log_dataframe(pd.DataFrame(records), "episodes.csv")
+            raise
         frame = pd.DataFrame(records)
         tracking.log_dataframe(frame, "episodes.csv")
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
