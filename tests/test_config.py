@@ -119,6 +119,12 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["tuner.n_iterations=0"], ["tuner.n_iterations=0", "≥ 1"]),
         (["controller.gains=nonexistent"], ["controller.gains=nonexistent", "one of: paper"]),
         (["+controller.gains.zz=1"], ["controller.gains.zz is not a config key", "a0, a1"]),
+        (["tasks.targets.0.x=3.0"], ["tasks.targets[0]", "outside the arm's reach"]),
+        (["tasks.targets.0.x=0.5", "tasks.targets.0.y=1.3"], ["inside obstacles.circles[0]"]),
+        (
+            ["obstacles.circles.0.x=1.0", "obstacles.circles.0.y=0.4"],
+            ["obstacles.circles[0]", "covers link 2", "robot.q0"],
+        ),
     ],
 )
 def test_bad_values_give_one_sentence(overrides: list[str], words: list[str]) -> None:

@@ -8,6 +8,7 @@ the value and what is allowed.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -163,6 +164,7 @@ def validate(cfg: DictConfig) -> None:
     """Check field values against their schema checks, then the cross-field rules."""
     _walk(cfg, "")
     _cross_checks(cfg)
+    _workspace_checks(cfg)
     _agent_checks(cfg)
     _train_checks(cfg)
 
@@ -202,6 +204,57 @@ def _walk(node: Any, path: str) -> None:
 
 def _is_container(x: Any) -> bool:
     return isinstance(x, DictConfig | ListConfig)
+
+
+def _segment_distance(
+    p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]
+) -> float:
+    """Distance from point ``p`` to the segment ``a``–``b``."""
+    ax, ay = a
+    dx, dy = b[0] - ax, b[1] - ay
+    length2 = dx * dx + dy * dy
+    t = 0.0 if length2 == 0 else max(0.0, min(1.0, ((p[0] - ax) * dx + (p[1] - ay) * dy) / length2))
+    return math.hypot(p[0] - ax - t * dx, p[1] - ay - t * dy)
+
+
+def _workspace_checks(cfg: DictConfig) -> None:
+    """Targets the arm can reach outside every obstacle, and no obstacle over the arm at its
+    start pose (base at the origin, angles summed along the chain)."""
+    robot, obstacles, tasks = cfg.get("robot"), cfg.get("obstacles"), cfg.get("tasks")
+    if robot is None or obstacles is None or tasks is None:
+        return
+    lengths = [float(v) for v in robot.lengths]
+    reach, inner = sum(lengths), max(0.0, 2 * max(lengths) - sum(lengths))
+    circles = [(float(c.x), float(c.y), float(c.r)) for c in obstacles.circles]
+    for i, target in enumerate(tasks.targets):
+        where = f"tasks.targets[{i}]"
+        point = (float(target.x), float(target.y))
+        distance = math.hypot(*point)
+        if not inner <= distance <= reach:
+            raise ConfigError(
+                f"{where} ({target.name} at x={point[0]:g}, y={point[1]:g}) is not allowed: it is "
+                f"{distance:.3g} m from the base, outside the arm's reach "
+                f"[{inner:.3g}, {reach:.3g}] m."
+            )
+        for k, (x, y, r) in enumerate(circles):
+            if math.hypot(point[0] - x, point[1] - y) < r:
+                raise ConfigError(
+                    f"{where} ({target.name} at x={point[0]:g}, y={point[1]:g}) is not allowed: "
+                    f"it lies inside obstacles.circles[{k}] (x={x:g}, y={y:g}, r={r:g})."
+                )
+    joints, angle = [(0.0, 0.0)], 0.0
+    for length, q in zip(lengths, robot.q0, strict=True):
+        angle += float(q)
+        last = joints[-1]
+        joints.append((last[0] + length * math.cos(angle), last[1] + length * math.sin(angle)))
+    for k, (x, y, r) in enumerate(circles):
+        for j in range(len(lengths)):
+            if _segment_distance((x, y), joints[j], joints[j + 1]) < r:
+                raise ConfigError(
+                    f"obstacles.circles[{k}] (x={x:g}, y={y:g}, r={r:g}) is not allowed: it covers "
+                    f"link {j + 1} of the arm at its start pose robot.q0="
+                    f"{[float(q) for q in robot.q0]}."
+                )
 
 
 def _cross_checks(cfg: DictConfig) -> None:
