@@ -157,11 +157,25 @@ def _open_sqlite(uri: str) -> None:
     migrates a new store's schema on first open, and processes doing that at the same time
     fail or leave it half-migrated."""
     db = Path(uri[len("sqlite:///") :])
-    db.parent.mkdir(parents=True, exist_ok=True)
-    with open(db.with_name(db.name + ".lock"), "a") as lock:
+    try:
+        db.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(db.with_name(db.name + ".lock"), "a")  # noqa: SIM115 (the with below)
+    except OSError as exc:
+        raise ConfigError(
+            f"tracking.runs_dir={db.parent} is not allowed: armexp cannot write there "
+            f"({exc.strerror}); give a folder you can write to."
+        ) from None
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             MlflowClient(uri).search_experiments(max_results=1)
+        except Exception as exc:
+            reason = str(exc).splitlines()[0][:200]
+            raise ConfigError(
+                f"tracking.runs_dir={db.parent} is not allowed: its MLflow store {db.name} cannot "
+                f"be opened ({type(exc).__name__}: {reason}); move it aside to start a new "
+                "store, or restore it from a backup."
+            ) from None
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
     _opened.add(uri)

@@ -136,3 +136,18 @@ def test_four_processes_racing_on_a_fresh_store_all_finish(tmp_path: Path) -> No
     assert exp is not None
     runs_found = client.search_runs([exp.experiment_id])
     assert len(runs_found) == 4 and {r.info.status for r in runs_found} == {"FINISHED"}
+
+
+def test_a_corrupt_store_is_one_sentence(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from armexp.cli import main
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "mlflow.db").write_text("not a database")
+    assert main(["simulate", f"tracking.runs_dir={runs}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert f"tracking.runs_dir={runs} is not allowed: its MLflow store mlflow.db cannot" in err[0]
+    assert (runs / "mlflow.db").read_text() == "not a database"  # left for the user to inspect

@@ -283,3 +283,13 @@ def test_an_interrupted_eval_keeps_the_episodes_it_ran(
     assert ev.info.status == "KILLED"
     rows = pd.read_csv(_download(runs_dir, ev.info.run_id, "episodes.csv", tmp_path))
     assert list(rows.task) == ["a", "b", "c"] and set(rows.controller) == {"adaptive"}
+
+
+def test_eval_does_not_take_a_policy_trained_among_other_obstacles(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    where = f"tracking.runs_dir={runs_dir}"
+    assert main(["train", "controller.gains=paper", *SMALL_TRAIN, where]) == 0
+    moved = "obstacles.circles.0.x=0.45"  # same set name, other circles
+    assert main(["eval", moved, "eval.pid_gains=config", "tasks.n_random=0", where]) == 2
+    assert "eval.train_run" in capsys.readouterr().err

@@ -58,7 +58,12 @@ def _train_run(cfg: DictConfig) -> Any:
         cfg,
         "train",
         run_id=cfg.eval.train_run,
-        match={"robot.name": str(cfg.robot.name), "obstacles.name": str(cfg.obstacles.name)},
+        # The circles too: a run with overridden circles keeps its obstacle set's name.
+        match={
+            "robot.name": str(cfg.robot.name),
+            "obstacles.name": str(cfg.obstacles.name),
+            "obstacles.circles": tracking.flatten(cfg)["obstacles.circles"],
+        },
         key="eval.train_run",
     )
 
