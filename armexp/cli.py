@@ -110,6 +110,19 @@ def split_args(args: Sequence[str]) -> tuple[list[str], list[str], bool, bool]:
     return flags, overrides, multirun, validate
 
 
+def _search_path(flags: Sequence[str]) -> list[str]:
+    """``--config-dir DIR`` / ``-cd DIR`` as the override the pre-run check composes with, so
+    the check sees the same config groups as the run."""
+    dirs = []
+    for i, flag in enumerate(flags):
+        name, eq, value = flag.partition("=")
+        if name in ("--config-dir", "-cd"):
+            value = value if eq else (flags[i + 1] if i + 1 < len(flags) else "")
+            if value:
+                dirs.append(f"file://{os.path.abspath(value)}")
+    return [f"hydra.searchpath=[{','.join(dirs)}]"] if dirs else []
+
+
 def _without_credentials(overrides: list[str]) -> list[str]:
     """A password in ``tracking.uri`` is taken out before Hydra, MLflow params, configs and
     printed lines see it (`armexp.tracking.keep_credentials_out`)."""
@@ -180,7 +193,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     overrides = _without_credentials(overrides)
     if validate:
         try:
-            precheck(overrides, multirun)
+            precheck([*_search_path(flags), *overrides], multirun)
         except ConfigError as exc:
             print(f"armexp {stage}: {exc}", file=sys.stderr)
             return EXIT_USAGE
