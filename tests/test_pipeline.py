@@ -124,3 +124,33 @@ def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) 
     for label in ("adaptive", "pid"):
         for j in range(1, n + 1):
             assert ev.data.metrics[f"{label}.a.max_abs_tau_{j}"] <= limit[j - 1]
+
+
+def test_reuse_resumes_an_interrupted_train_run_instead_of_starting_over(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from armexp.agents.callbacks import EpisodeStats
+
+    runs = tmp_path / "runs"
+    original = EpisodeStats._on_step
+
+    def interrupt_at_450(self: EpisodeStats) -> bool:
+        if self.num_timesteps >= 450:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(EpisodeStats, "_on_step", interrupt_at_450)
+    command = ["pipeline", *SMALL, "pipeline.reuse=true", f"tracking.runs_dir={runs}"]
+    assert main(command) == 130
+    (stopped,) = _runs(runs, "train")
+    assert stopped.info.status == "KILLED"
+    monkeypatch.setattr(EpisodeStats, "_on_step", original)
+    assert main(command) == 0
+    (train,) = _runs(runs, "train")  # the same run, continued, not a second one
+    assert train.info.run_id == stopped.info.run_id and train.info.status == "FINISHED"
+    assert int(train.data.tags["armexp.resumed_from_step"]) >= 400
+    assert train.data.metrics["final/env_steps"] == 600
+    second = _runs(runs, "pipeline")[-1]
+    assert second.data.tags["armexp.resumed.train"] == train.info.run_id
+    (ev,) = _runs(runs, "eval")
+    assert ev.data.tags["armexp.train_run"] == train.info.run_id

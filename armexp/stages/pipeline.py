@@ -79,6 +79,26 @@ def _reusable(cfg: DictConfig, stage: str) -> str | None:
     return runs[0].info.run_id if runs else None
 
 
+def _resumable(cfg: DictConfig) -> str | None:
+    """A KILLED or FAILED train run with these inputs and a checkpoint, to continue."""
+    digest = tracking.inputs_hash(cfg, "train")
+    client = MlflowClient(tracking.store_uri(cfg))
+    exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
+    if digest is None or exp is None:
+        return None
+    runs = client.search_runs(
+        [exp.experiment_id],
+        f"tags.`{tracking.STAGE_TAG}` = 'train' and tags.`{tracking.INPUTS_TAG}` = '{digest}'",
+        order_by=["attributes.start_time DESC"],
+        max_results=20,
+    )
+    for run in runs:
+        stopped = run.info.status in ("KILLED", "FAILED")
+        if stopped and client.list_artifacts(run.info.run_id, "checkpoint"):
+            return str(run.info.run_id)
+    return None
+
+
 def run(cfg: DictConfig) -> dict[str, str]:
     """One pipeline, or with ``pipeline.seeds`` a study of one pipeline per seed."""
     if cfg.pipeline.seeds:
@@ -133,7 +153,15 @@ def run_one(
         with open_dict(cfg):
             if cfg.train.gains == "tuned":
                 cfg.train.tune_run = ids["tune"]
-            step("train", "train", cfg, train.run)
+            stopped = _resumable(cfg) if cfg.pipeline.reuse else None
+            if stopped and not _reusable(cfg, "train"):
+                print(f"pipeline: train resumes the interrupted run {stopped}")
+                mlflow.set_tag("armexp.resumed.train", stopped)
+                cfg.train.resume = stopped
+                step("train", "train", cfg, lambda c: train.resume(c, check_overrides=False))
+                cfg.train.resume = None
+            else:
+                step("train", "train", cfg, train.run)
             cfg.eval.train_run = ids["train"]
             if cfg.eval.pid_gains == "tuned":
                 cfg.eval.pid_tune_run = ids["tune_pid"]

@@ -116,8 +116,10 @@ def run(cfg: DictConfig) -> dict[str, float]:
         return _learn(cfg, gains, active.info.run_id, model_path=None, state={})
 
 
-def resume(cfg: DictConfig) -> dict[str, float]:
-    """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run."""
+def resume(cfg: DictConfig, check_overrides: bool = True) -> dict[str, float]:
+    """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run
+    (``check_overrides=False``: the caller knows ``cfg`` matches the run's inputs, e.g. the
+    pipeline with ``pipeline.reuse``)."""
     run_id = str(cfg.train.resume)
     found = tracking.find_stage_run(
         cfg, "train", run_id=run_id, key="train.resume", statuses=("KILLED", "FAILED", "RUNNING")
@@ -141,7 +143,8 @@ def resume(cfg: DictConfig) -> dict[str, float]:
     assert isinstance(original, DictConfig)
     original.tracking = cfg.tracking
     original.train.progress = cfg.train.progress
-    _apply_resume_overrides(original, cfg, run_id)
+    if check_overrides:
+        _apply_resume_overrides(original, cfg, run_id)
     gains = yaml.safe_load(tracking.download_artifact(run_id, "gains.yaml", cfg).read_text())
     print(f"train: resuming run {run_id} from step {state['num_timesteps']}")
     with tracking.stage_run(
