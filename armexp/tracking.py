@@ -13,6 +13,7 @@ The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -136,6 +137,40 @@ def store_uri(cfg: DictConfig) -> str:
     return uri
 
 
+def _follow_move(db: Path) -> None:
+    """A store whose folder was moved (``mv proj proj2``) still names its artifacts by the old
+    absolute path; when that path's store is gone, its artifact locations are moved to the
+    ``artifacts`` folder beside ``db``, where they now are."""
+    import sqlite3
+
+    here = f"file://{db.parent / 'artifacts'}"
+    with contextlib.closing(sqlite3.connect(db)) as con:
+        locations = [r[0] for r in con.execute("SELECT artifact_location FROM experiments")]
+        for location in locations:
+            if not location.startswith("file://") or location.rstrip("/") == here:
+                continue
+            old = Path(location[len("file://") :].rstrip("/"))
+            if old.name != "artifacts" or (old.parent / db.name).exists():
+                continue  # a location of the user's choosing, or its store is still there
+            prefix = f"file://{old}"
+            with con:
+                con.execute(
+                    "UPDATE experiments SET artifact_location = ? || substr(artifact_location, ?)"
+                    " WHERE artifact_location LIKE ? || '%'",
+                    (here, len(prefix) + 1, prefix),
+                )
+                con.execute(
+                    "UPDATE runs SET artifact_uri = ? || substr(artifact_uri, ?)"
+                    " WHERE artifact_uri LIKE ? || '%'",
+                    (here, len(prefix) + 1, prefix),
+                )
+            print(
+                f"armexp: the store {db} was moved from {old.parent}; its artifact paths now "
+                f"point into {db.parent / 'artifacts'}",
+                file=sys.stderr,
+            )
+
+
 def _probe_server(uri: str) -> None:
     """Ask the server's ``/health`` once per process, so an address with no server behind it
     is one sentence now instead of MLflow's minutes of retries."""
@@ -169,6 +204,7 @@ def _open_sqlite(uri: str) -> None:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             MlflowClient(uri).search_experiments(max_results=1)
+            _follow_move(db)
         except Exception as exc:
             reason = str(exc).splitlines()[0][:200]
             raise ConfigError(

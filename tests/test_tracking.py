@@ -151,3 +151,26 @@ def test_a_corrupt_store_is_one_sentence(
     assert len(err) == 1
     assert f"tracking.runs_dir={runs} is not allowed: its MLflow store mlflow.db cannot" in err[0]
     assert (runs / "mlflow.db").read_text() == "not a database"  # left for the user to inspect
+
+
+def test_a_moved_store_finds_its_artifacts_and_writes_new_ones_beside_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mlflow.tracking import MlflowClient
+
+    from armexp.cli import main
+
+    first, moved = tmp_path / "proj", tmp_path / "proj2"
+    sim = ["simulate", "scenario=hold", "scenario.duration=0.05"]
+    assert main([*sim, f"tracking.runs_dir={first / 'runs'}"]) == 0
+    first.rename(moved)  # mv proj proj2
+    runs = moved / "runs"
+    assert main([*sim, "seed=1", f"tracking.runs_dir={runs}"]) == 0
+    assert f"was moved from {first / 'runs'}" in capsys.readouterr().err
+    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    for run in client.search_runs([exp.experiment_id]):
+        assert run.info.artifact_uri.startswith(f"file://{runs / 'artifacts'}")
+        assert Path(client.download_artifacts(run.info.run_id, "config.yaml", str(tmp_path)))
+    assert not first.exists()  # nothing written to the old place
