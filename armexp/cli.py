@@ -14,8 +14,10 @@ import errno
 import importlib
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 EXIT_USAGE = 2
@@ -165,7 +167,7 @@ def precheck(overrides: Sequence[str], multirun: bool) -> None:
     from armexp.config import compose_config
 
     if not multirun:
-        compose_config(overrides)
+        _writable(compose_config(overrides))
         return
     sweepable = [o for o in overrides if not o.startswith("hydra")]
     try:
@@ -174,7 +176,24 @@ def precheck(overrides: Sequence[str], multirun: bool) -> None:
         # Non-basic sweeps (ranges for other sweepers, …): validate the fixed part only.
         jobs = [[o for o in sweepable if "," not in o and "(" not in o]]
     for job in jobs:
-        compose_config(job)
+        cfg = compose_config(job)
+    _writable(cfg)
+
+
+def _writable(cfg: Any) -> None:
+    """The runs folder (Hydra's job folders and the default store go there) can be made."""
+    from armexp.config import ConfigError
+
+    folder = Path(str(cfg.tracking.runs_dir)).resolve()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise ConfigError(
+            f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write there "
+            f"({exc.strerror}); give a folder you can write to."
+        ) from None
 
 
 def run_stage(stage: str, args: Sequence[str]) -> int:

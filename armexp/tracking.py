@@ -13,12 +13,14 @@ The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import fcntl
 import hashlib
 import json
 import logging
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -564,10 +566,22 @@ def find_stage_run(
     return runs[0]
 
 
+_download_root: Path | None = None
+
+
+def _downloads() -> Path:
+    """This process's folder for downloaded artifacts, removed when the process exits."""
+    global _download_root
+    if _download_root is None:
+        _download_root = Path(tempfile.mkdtemp(prefix="armexp-"))
+        atexit.register(shutil.rmtree, _download_root, True)
+    return _download_root
+
+
 def download_artifact(run_id: str, path: str, cfg: DictConfig) -> Path:
     """Fetch one artifact of a run into a temporary folder and return its local path."""
     mlflow.set_tracking_uri(store_uri(cfg))
-    dst = tempfile.mkdtemp(prefix="armexp-")
+    dst = tempfile.mkdtemp(dir=_downloads())
     return Path(
         mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=dst)
     )

@@ -174,3 +174,38 @@ def test_a_moved_store_finds_its_artifacts_and_writes_new_ones_beside_them(
         assert run.info.artifact_uri.startswith(f"file://{runs / 'artifacts'}")
         assert Path(client.download_artifacts(run.info.run_id, "config.yaml", str(tmp_path)))
     assert not first.exists()  # nothing written to the old place
+
+
+def test_a_runs_dir_that_cannot_be_written_is_one_sentence(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from armexp.cli import main
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")  # a folder cannot be made inside a file (root or not)
+    assert main(["simulate", f"tracking.runs_dir={blocker / 'runs'}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not allowed: armexp cannot write there" in err[0]
+
+
+def test_no_download_folder_is_left_in_the_temp_directory(tmp_path: Path) -> None:
+    """Stages download configs, gains and models; the folders go when the process ends."""
+    import os
+    import subprocess
+    import sys
+
+    from armexp.cli import main
+
+    runs = tmp_path / "runs"
+    from tests.helpers import SMALL_TRAIN
+
+    train = ["train", "controller.gains=paper", *SMALL_TRAIN, f"tracking.runs_dir={runs}"]
+    assert main(train) == 0
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    command = [sys.executable, "-m", "armexp", "eval", "eval.pid_gains=config",
+               "tasks.n_random=1", f"tracking.runs_dir={runs}"]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "TMPDIR": str(temp)})  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [p.name for p in temp.iterdir() if p.name.startswith("armexp-")] == []
