@@ -32,10 +32,37 @@ TINY = {
 }
 
 
-def examples() -> list[str]:
+def examples(after: str = "Examples:\n\n") -> list[str]:
+    """The armexp lines of the first bash block after ``after`` in the README."""
     text = README.read_text()
-    block = text.split("Examples:\n\n```bash\n", 1)[1].split("```", 1)[0]
-    return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
+    block = text.split(after, 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    lines = [line.split("  #")[0].strip() for line in block.splitlines()]
+    return [line for line in lines if line.startswith("armexp ")]
+
+
+def _shell(command: str, cwd: Path) -> None:
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    done = subprocess.run(["bash", "-c", command], capture_output=True, text=True, env=env,
+                          cwd=cwd, timeout=900)  # fmt: skip
+    assert done.returncode == 0, (command, done.stderr[-3000:])
+
+
+@pytest.mark.slow
+def test_every_sweep_example_runs_as_written(tmp_path: Path) -> None:
+    """The Sweeps section's block: basic, joblib and parallel launchers, tiny budgets."""
+    where = [f"tracking.runs_dir={tmp_path / 'runs'}"]
+    assert main(["train", "controller.gains=paper", "agent=sac_smoke", *TRAIN, *where]) == 0
+    assert main(["tune", "controller=pid", *TUNE, *where]) == 0  # eval's PID gains
+    commands = examples(after="## Sweeps")
+    assert len(commands) >= 4
+    for line in commands:
+        stage = line.split()[1]
+        extra = [*TINY[stage], *where]
+        if stage == "pipeline":
+            extra.remove("pipeline.seeds=[0,1]")  # the sweep gives the seeds
+        if stage == "eval":
+            extra.append("tasks.n_random=1")
+        _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)
 
 
 def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -55,7 +82,6 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
     assert main(killed) == 130
     monkeypatch.undo()
     (stopped,) = stage_runs(runs, "train")
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     commands = examples()
     assert len(commands) >= 10
     for line in commands:
@@ -68,7 +94,4 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
         extra = [*([] if "train.resume=" in line else TINY[stage]), *where]
         if stage == "report":
             extra.append(f"report.out_dir={tmp_path / 'report'}")
-        command = " ".join([line, *(f"'{o}'" for o in extra)])
-        done = subprocess.run(["bash", "-c", command], capture_output=True, text=True, env=env,
-                              cwd=tmp_path, timeout=600)  # fmt: skip
-        assert done.returncode == 0, (command, done.stderr[-3000:])
+        _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)
