@@ -127,8 +127,8 @@ def _search_path(flags: Sequence[str]) -> list[str]:
 
 def _without_credentials(overrides: list[str]) -> list[str]:
     """A password in ``tracking.uri`` is taken out before Hydra, MLflow params, configs and
-    printed lines see it (`armexp.tracking.keep_credentials_out`)."""
-    from armexp.tracking import keep_credentials_out
+    printed lines see it (`armexp.store.keep_credentials_out`)."""
+    from armexp.store import keep_credentials_out
 
     out = []
     for override in overrides:

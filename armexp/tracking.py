@@ -14,8 +14,6 @@ The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 from __future__ import annotations
 
 import atexit
-import contextlib
-import fcntl
 import hashlib
 import json
 import logging
@@ -26,13 +24,10 @@ import sys
 import tempfile
 import threading
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
-from urllib.parse import unquote, urlsplit, urlunsplit
 
 import mlflow
 from mlflow.entities import Run
@@ -40,6 +35,7 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from armexp import store
 from armexp.config import ConfigError
 
 # Stages download small artifacts often (configs, gains, models): MLflow's per-download progress
@@ -51,8 +47,6 @@ COMMIT_TAG = "armexp.git_commit"
 ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
 HEARTBEAT_TAG = "armexp.heartbeat"
-#: Seconds to wait for a tracking server's first answer.
-PROBE_S = 10.0
 #: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
 #: taken as one whose process died.
 HEARTBEAT_S = 30.0
@@ -70,12 +64,7 @@ STAGE_INPUTS: dict[str, tuple[str, ...]] = {
              "eval.adaptive_gains", "controller.gains", "eval.controllers", "eval.paper_tasks",
              "eval.deterministic", "eval.initial_offset", "eval.convergence_window"),
 }  # fmt: skip
-#: What a hidden password is shown as; `store_uri` restores it from SECRET_URI_ENV.
-HIDDEN = "***"
-SECRET_URI_ENV = "ARMEXP_TRACKING_URI"
 _parents: list[str] = []
-#: SQLite stores this process has opened (created and migrated under a lock).
-_opened: set[str] = set()
 #: The id of the stage run started last in this process (the pipeline reads its children's).
 last_run_id: str | None = None
 MAX_PARAM_LENGTH = 6000
@@ -86,137 +75,26 @@ for _noisy in ("alembic", "mlflow.store.db.utils"):
     logging.getLogger(_noisy).setLevel(logging.WARNING)
 
 
-def hide_password(uri: str) -> str:
-    """``uri`` with the password of its user info shown as ``***`` (unchanged without one)."""
-    parts = urlsplit(uri)
-    if parts.password is None:
-        return uri
-    host = parts.netloc.rpartition("@")[2]
-    return urlunsplit(parts._replace(netloc=f"{parts.username}:{HIDDEN}@{host}"))
-
-
-def keep_credentials_out(uri: str) -> str:
-    """The form of a ``tracking.uri`` that may be logged, printed and written to Hydra's folders.
-
-    HTTP(S): the user and password go to MLflow's ``MLFLOW_TRACKING_USERNAME`` /
-    ``MLFLOW_TRACKING_PASSWORD`` and the URI loses them. Other schemes (a database URI) need them
-    in the URI: the URI is kept in ``ARMEXP_TRACKING_URI`` for this process and its children and
-    logged with the password as ``***`` (`store_uri` puts it back)."""
-    parts = urlsplit(uri)
-    if parts.password is None:
-        return uri
-    if parts.scheme in ("http", "https"):
-        os.environ["MLFLOW_TRACKING_USERNAME"] = unquote(parts.username or "")
-        os.environ["MLFLOW_TRACKING_PASSWORD"] = unquote(parts.password)
-        return urlunsplit(parts._replace(netloc=parts.netloc.rpartition("@")[2]))
-    os.environ[SECRET_URI_ENV] = uri
-    return hide_password(uri)
-
-
 def store_uri(cfg: DictConfig) -> str:
     """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``; a
     SQLite store is created (or migrated) under a lock the first time this process uses it."""
     if cfg.tracking.uri:
         uri = str(cfg.tracking.uri)
-        if f":{HIDDEN}@" in uri:
-            real = os.environ.get(SECRET_URI_ENV, "")
-            if hide_password(real) != uri:
+        if f":{store.HIDDEN}@" in uri:
+            real = os.environ.get(store.SECRET_URI_ENV, "")
+            if store.hide_password(real) != uri:
                 raise ConfigError(
                     f"tracking.uri={uri} is not allowed here: its password is hidden and this "
-                    f"process was not given it ({SECRET_URI_ENV}); pass tracking.uri with the "
-                    "password on the armexp command line."
+                    f"process was not given it ({store.SECRET_URI_ENV}); pass tracking.uri with "
+                    "the password on the armexp command line."
                 )
             uri = real
     else:
         runs = Path(cfg.tracking.runs_dir).resolve()
         runs.mkdir(parents=True, exist_ok=True)
         uri = f"sqlite:///{runs / 'mlflow.db'}"
-    if uri not in _opened:
-        if uri.startswith("sqlite:///"):
-            _open_sqlite(uri)
-        elif uri.startswith(("http://", "https://")):
-            _probe_server(uri)
+    store.open_once(uri)
     return uri
-
-
-def _follow_move(db: Path) -> None:
-    """A store whose folder was moved (``mv proj proj2``) still names its artifacts by the old
-    absolute path; when that path's store is gone, its artifact locations are moved to the
-    ``artifacts`` folder beside ``db``, where they now are."""
-    import sqlite3
-
-    here = f"file://{db.parent / 'artifacts'}"
-    with contextlib.closing(sqlite3.connect(db)) as con:
-        locations = [r[0] for r in con.execute("SELECT artifact_location FROM experiments")]
-        for location in locations:
-            if not location.startswith("file://") or location.rstrip("/") == here:
-                continue
-            old = Path(location[len("file://") :].rstrip("/"))
-            if old.name != "artifacts" or (old.parent / db.name).exists():
-                continue  # a location of the user's choosing, or its store is still there
-            prefix = f"file://{old}"
-            with con:
-                con.execute(
-                    "UPDATE experiments SET artifact_location = ? || substr(artifact_location, ?)"
-                    " WHERE artifact_location LIKE ? || '%'",
-                    (here, len(prefix) + 1, prefix),
-                )
-                con.execute(
-                    "UPDATE runs SET artifact_uri = ? || substr(artifact_uri, ?)"
-                    " WHERE artifact_uri LIKE ? || '%'",
-                    (here, len(prefix) + 1, prefix),
-                )
-            print(
-                f"armexp: the store {db} was moved from {old.parent}; its artifact paths now "
-                f"point into {db.parent / 'artifacts'}",
-                file=sys.stderr,
-            )
-
-
-def _probe_server(uri: str) -> None:
-    """Ask the server's ``/health`` once per process, so an address with no server behind it
-    is one sentence now instead of MLflow's minutes of retries."""
-    try:
-        urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=PROBE_S).close()
-    except urllib.error.HTTPError:
-        pass  # it answered
-    except (urllib.error.URLError, OSError) as exc:
-        reason = getattr(exc, "reason", exc)
-        raise ConfigError(
-            f"tracking.uri={hide_password(uri)} is not allowed: no MLflow server answers there "
-            f"({reason}); start one (README, Scaling out) or correct the address."
-        ) from None
-    _opened.add(uri)
-
-
-def _open_sqlite(uri: str) -> None:
-    """Open the SQLite store once with an exclusive lock on ``<db>.lock``: MLflow creates and
-    migrates a new store's schema on first open, and processes doing that at the same time
-    fail or leave it half-migrated."""
-    db = Path(uri[len("sqlite:///") :])
-    try:
-        db.parent.mkdir(parents=True, exist_ok=True)
-        lock = open(db.with_name(db.name + ".lock"), "a")  # noqa: SIM115 (the with below)
-    except OSError as exc:
-        raise ConfigError(
-            f"tracking.runs_dir={db.parent} is not allowed: armexp cannot write there "
-            f"({exc.strerror}); give a folder you can write to."
-        ) from None
-    with lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            MlflowClient(uri).search_experiments(max_results=1)
-            _follow_move(db)
-        except Exception as exc:
-            reason = str(exc).splitlines()[0][:200]
-            raise ConfigError(
-                f"tracking.runs_dir={db.parent} is not allowed: its MLflow store {db.name} cannot "
-                f"be opened ({type(exc).__name__}: {reason}); move it aside to start a new "
-                "store, or restore it from a backup."
-            ) from None
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
-    _opened.add(uri)
 
 
 def artifact_root(cfg: DictConfig) -> str | None:

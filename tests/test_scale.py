@@ -260,10 +260,10 @@ def test_a_password_in_the_tracking_uri_is_nowhere_in_the_runs(
 def test_a_database_uri_keeps_its_password_out_of_the_logs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from armexp import tracking
+    from armexp import store, tracking
 
     monkeypatch.setenv("ARMEXP_TRACKING_URI", "")
-    shown = tracking.keep_credentials_out("postgresql://bob:pa55@db.example:5432/mlflow")
+    shown = store.keep_credentials_out("postgresql://bob:pa55@db.example:5432/mlflow")
     assert shown == "postgresql://bob:***@db.example:5432/mlflow"
     from armexp.config import compose_config
 
