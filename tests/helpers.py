@@ -52,3 +52,18 @@ def small_sac(settings: Any, n_envs: int = 1, batch_size: int = 64) -> Any:
     model = build_sac(agent, make_vec_env(settings, n_envs, "dummy", 0), 0, settings)
     model.set_logger(Logger(folder=None, output_formats=[]))
     return model
+
+
+def interrupt_training_at(monkeypatch: Any, steps: int) -> None:
+    """Make training raise KeyboardInterrupt (as Ctrl-C) once it reaches ``steps`` environment
+    steps; ``monkeypatch.undo()`` or the test's end restores it."""
+    from armexp.agents.callbacks import EpisodeStats
+
+    original = EpisodeStats._on_step
+
+    def interrupted(self: EpisodeStats) -> bool:
+        if self.num_timesteps >= steps:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(EpisodeStats, "_on_step", interrupted)

@@ -9,7 +9,7 @@ import pytest
 
 from armexp.cli import main
 from armexp.config import compose_config, group_options
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import SMALL_TRAIN, interrupt_training_at, stage_runs
 
 SMALL = [
     "experiment=smoke",
@@ -129,22 +129,13 @@ def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) 
 def test_reuse_resumes_an_interrupted_train_run_instead_of_starting_over(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from armexp.agents.callbacks import EpisodeStats
-
     runs = tmp_path / "runs"
-    original = EpisodeStats._on_step
-
-    def interrupt_at_450(self: EpisodeStats) -> bool:
-        if self.num_timesteps >= 450:
-            raise KeyboardInterrupt
-        return original(self)
-
-    monkeypatch.setattr(EpisodeStats, "_on_step", interrupt_at_450)
+    interrupt_training_at(monkeypatch, 450)
     command = ["pipeline", *SMALL, "pipeline.reuse=true", f"tracking.runs_dir={runs}"]
     assert main(command) == 130
     (stopped,) = _runs(runs, "train")
     assert stopped.info.status == "KILLED"
-    monkeypatch.setattr(EpisodeStats, "_on_step", original)
+    monkeypatch.undo()  # training runs to its end again
     assert main(command) == 0
     (train,) = _runs(runs, "train")  # the same run, continued, not a second one
     assert train.info.run_id == stopped.info.run_id and train.info.status == "FINISHED"

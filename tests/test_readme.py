@@ -12,9 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from armexp.agents.callbacks import EpisodeStats
 from armexp.cli import main
-from tests.helpers import stage_runs
+from tests.helpers import interrupt_training_at, stage_runs
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 TUNE = ["tuner.n_iterations=2", "tuner.n_nests=4", "tuner.objective.n_scenarios=2",
@@ -69,14 +68,7 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
     runs = tmp_path / "runs"
     where = [f"tracking.runs_dir={runs}"]
     # A KILLED train run for the resume example.
-    original = EpisodeStats._on_step
-
-    def interrupt(self: EpisodeStats) -> bool:
-        if self.num_timesteps >= 250:
-            raise KeyboardInterrupt
-        return original(self)
-
-    monkeypatch.setattr(EpisodeStats, "_on_step", interrupt)
+    interrupt_training_at(monkeypatch, 250)
     killed = ["train", "controller.gains=paper", "agent=sac_smoke", "train.checkpoint_every=100",
               *TRAIN, *where]  # fmt: skip
     assert main(killed) == 130

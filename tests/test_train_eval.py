@@ -13,11 +13,10 @@ import pytest
 import yaml
 from mlflow.tracking import MlflowClient
 
-from armexp.agents.callbacks import EpisodeStats
 from armexp.agents.sac import ResumableSAC
 from armexp.cli import main
 from armexp.sim.core import trajectory_columns
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import SMALL_TRAIN, interrupt_training_at, stage_runs
 
 
 def _client(runs_dir: Path) -> MlflowClient:
@@ -141,14 +140,7 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     where = f"tracking.runs_dir={runs_dir}"
-    original = EpisodeStats._on_step
-
-    def interrupt_at_450(self: EpisodeStats) -> bool:
-        if self.num_timesteps >= 450:
-            raise KeyboardInterrupt
-        return original(self)
-
-    monkeypatch.setattr(EpisodeStats, "_on_step", interrupt_at_450)
+    interrupt_training_at(monkeypatch, 450)
     rc = main(
         ["train", "controller.gains=paper", *SMALL_TRAIN, "train.checkpoint_every=100000", where]
     )
@@ -161,7 +153,7 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     assert state["num_timesteps"] == 450
     assert len(state["recent"]) == state["episodes"] > 0  # the rolling window is saved
     assert run.data.tags["armexp.error"] == "interrupted"
-    monkeypatch.setattr(EpisodeStats, "_on_step", original)
+    monkeypatch.undo()  # training runs to its end again
     # Anything but the budget would be ignored by a resume: refused, nothing run.
     assert main(["train", f"train.resume={run.info.run_id}", "agent.gamma=0.5", where]) == 2
     assert _runs(runs_dir, "train")[0].info.status == "KILLED"
