@@ -307,6 +307,7 @@ def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str, Any]:
                 tracking.STAGE_TAG: "sweep",
                 "armexp.sweep_stage": stage,
                 tracking.HEARTBEAT_TAG: f"{time.time():.0f}",
+                tracking.PROCESS_TAG: tracking.process_identity(),
             },
         )
     )

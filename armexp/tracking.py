@@ -19,6 +19,7 @@ import json
 import logging
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -47,6 +48,9 @@ COMMIT_TAG = "armexp.git_commit"
 ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
 HEARTBEAT_TAG = "armexp.heartbeat"
+#: ``host:pid:start`` of the process running a stage: on the same host, a run whose process is
+#: gone is known dead at once, without waiting `STALE_S`.
+PROCESS_TAG = "armexp.process"
 #: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
 #: taken as one whose process died.
 HEARTBEAT_S = 30.0
@@ -241,9 +245,40 @@ def heartbeat_age(run: Run) -> float:
     return time.time() - last
 
 
+def _process_start(pid: int) -> str | None:
+    """The start time of process `pid` in clock ticks since boot (Linux), None elsewhere or when
+    there is no such process; with the pid it names one process even after pids wrap round."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat.rsplit(")", 1)[1].split()[19]  # field 22; the name in (…) may hold spaces
+
+
+def process_identity() -> str:
+    """This process as ``host:pid:start`` (the `PROCESS_TAG` value)."""
+    pid = os.getpid()
+    return f"{socket.gethostname()}:{pid}:{_process_start(pid) or ''}"
+
+
+def _process_gone(identity: str | None) -> bool:
+    """True when `identity` names a process on this host that no longer runs. A process on
+    another host, or one this platform cannot look up, is not known gone."""
+    if not identity:
+        return False
+    host, _, rest = identity.partition(":")
+    pid_text, _, start = rest.partition(":")
+    if host != socket.gethostname() or not pid_text.isdigit() or not start:
+        return False
+    return _process_start(int(pid_text)) != start
+
+
 def is_alive(run: Run) -> bool:
-    """A RUNNING run whose process reported within `STALE_S`."""
-    return run.info.status == "RUNNING" and heartbeat_age(run) < STALE_S
+    """A RUNNING run whose process is not known gone (`PROCESS_TAG`) and reported within
+    `STALE_S`."""
+    if run.info.status != "RUNNING" or _process_gone(run.data.tags.get(PROCESS_TAG)):
+        return False
+    return heartbeat_age(run) < STALE_S
 
 
 def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
@@ -257,7 +292,12 @@ def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
         if STAGE_TAG not in run.data.tags or is_alive(run):
             continue
         age = heartbeat_age(run)
-        message = f"process stopped: no heartbeat for {age:.0f} s"
+        gone = _process_gone(run.data.tags.get(PROCESS_TAG))
+        message = (
+            f"process stopped: {run.data.tags[PROCESS_TAG]} is gone"
+            if gone
+            else f"process stopped: no heartbeat for {age:.0f} s"
+        )
         try:
             client.set_tag(run.info.run_id, ERROR_TAG, message)
             client.set_terminated(run.info.run_id, "FAILED")
@@ -265,8 +305,9 @@ def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
             continue  # another process closes it
         stage = run.data.tags[STAGE_TAG]
         print(
-            f"armexp: {stage} run {run.info.run_id} was RUNNING but its process stopped "
-            f"{age:.0f} s ago; marked FAILED"
+            f"armexp: {stage} run {run.info.run_id} was RUNNING but its process stopped"
+            + ("" if gone else f" {age:.0f} s ago")
+            + "; marked FAILED"
             + (f" (continue it with train.resume={run.info.run_id})" if stage == "train" else ""),
             file=sys.stderr,
         )
@@ -288,7 +329,12 @@ def stage_run(
     ``resume_run_id`` reopens an existing run (its params and config stay as first logged).
     """
     experiment_id = setup(cfg)
-    tags = {STAGE_TAG: stage, HEARTBEAT_TAG: f"{time.time():.0f}", **(extra_tags or {})}
+    tags = {
+        STAGE_TAG: stage,
+        HEARTBEAT_TAG: f"{time.time():.0f}",
+        PROCESS_TAG: process_identity(),
+        **(extra_tags or {}),
+    }
     commit = git_commit()
     if commit:
         tags[COMMIT_TAG] = commit
@@ -468,6 +514,8 @@ def download_artifact(run_id: str, path: str, cfg: DictConfig) -> Path:
 def ui_command(cfg: DictConfig) -> list[str]:
     """The `mlflow ui` command line that shows this store."""
     cmd = ["mlflow", "ui", "--backend-store-uri", store_uri(cfg)]
+    # One worker: one person browsing one store, and Ctrl-C never lands in a worker mid-import.
+    cmd += ["--host", str(cfg.ui.host), "--port", str(cfg.ui.port), "--workers", "1"]
     root = artifact_root(cfg)
     if root:
         cmd += ["--default-artifact-root", root]

@@ -56,17 +56,27 @@ def test_resuming_a_run_that_is_still_training_is_refused(
     assert client.get_run(run.info.run_id).info.status == "KILLED"
 
 
+@pytest.mark.parametrize("same_host", [True, False])
 def test_a_run_whose_process_died_is_closed_by_the_next_command(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    same_host: bool,
 ) -> None:
+    """On the same host the dead process is seen at once; from another host only its silence
+    tells, after STALE_S."""
     runs = tmp_path / "runs"
     proc, run = _running_train(runs)
+    assert run.data.tags[tracking.PROCESS_TAG].split(":")[1] == str(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=60)
     client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
     assert client.get_run(run.info.run_id).info.status == "RUNNING"  # nobody could end it
-    # No heartbeat for STALE_S means dead; the test does not wait that long.
-    monkeypatch.setattr(tracking, "STALE_S", 0.0)
+    if not same_host:
+        monkeypatch.setattr(tracking.socket, "gethostname", lambda: "another-host")
+        # The heartbeat is fresh: the run is taken for live until it has been silent STALE_S.
+        assert tracking.is_alive(client.get_run(run.info.run_id))
+        monkeypatch.setattr(tracking, "STALE_S", 0.0)  # the test does not wait that long
     assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
                  f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
     err = capsys.readouterr().err
@@ -74,7 +84,12 @@ def test_a_run_whose_process_died_is_closed_by_the_next_command(
     assert f"train.resume={run.info.run_id}" in err
     closed = client.get_run(run.info.run_id)
     assert closed.info.status == "FAILED"
-    assert "no heartbeat" in closed.data.tags["armexp.error"]
+    reason = closed.data.tags["armexp.error"]
+    assert (
+        (f":{proc.pid}:" in reason and "is gone" in reason)
+        if same_host
+        else ("no heartbeat" in reason)
+    )
     live = [
         r for r in client.search_runs([closed.info.experiment_id]) if r.info.status == "RUNNING"
     ]

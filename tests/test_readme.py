@@ -87,3 +87,60 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
         if stage == "report":
             extra.append(f"report.out_dir={tmp_path / 'report'}")
         _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)
+
+
+def _ui_block() -> list[str]:
+    """The command lines of the bash block in the README's UI section."""
+    text = README.read_text().split("## Looking at runs", 1)[1]
+    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
+    return [line for line in block.splitlines() if line and not line.startswith("#")]
+
+
+@pytest.mark.parametrize("which", [0, 1], ids=["armexp ui", "mlflow ui"])
+def test_the_ui_commands_serve_the_stores_runs_and_stop_on_ctrl_c(
+    tmp_path: Path, which: int
+) -> None:
+    """Both lines of the UI block serve the runs in ``runs/`` (the port moved off 5000 so tests
+    can run side by side); Ctrl-C stops the server and leaves every run as it was."""
+    import json
+    import signal
+    import socket
+    import time
+    import urllib.request
+
+    assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
+                 f"tracking.runs_dir={tmp_path / 'runs'}"]) == 0  # fmt: skip
+    (sim,) = stage_runs(tmp_path / "runs", "simulate")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    line = _ui_block()[which]
+    assert line.split()[:2] == (["armexp", "ui"] if which == 0 else ["mlflow", "ui"])
+    line += f" ui.port={port}" if which == 0 else f" --port {port}"
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    proc = subprocess.Popen(["bash", "-c", f"exec {line}"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)  # fmt: skip
+    url = f"http://127.0.0.1:{port}/ajax-api/2.0/mlflow/runs/search"
+    try:
+        for _ in range(120):
+            try:
+                body = json.dumps({"experiment_ids": [sim.info.experiment_id]}).encode()
+                request = urllib.request.Request(url, body, {"Content-Type": "application/json"})
+                with urllib.request.urlopen(request, timeout=2) as res:
+                    listed = json.load(res)["runs"]
+                break
+            except OSError:
+                assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
+                time.sleep(0.5)
+        else:
+            pytest.fail("the UI did not answer within 60 s")
+        assert [r["info"]["run_id"] for r in listed] == [sim.info.run_id]
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    if which == 0:  # MLflow's own line runs 4 workers, which may print their import cut short
+        assert "Traceback" not in out, out[-3000:]
+    (after,) = stage_runs(tmp_path / "runs", "simulate")
+    assert after.info.status == "FINISHED"
+    assert stage_runs(tmp_path / "runs", "ui") == []  # serving the UI is not a run

@@ -188,6 +188,39 @@ def test_a_runs_dir_that_cannot_be_written_is_one_sentence(
     assert len(err) == 1 and "is not allowed: armexp cannot write there" in err[0]
 
 
+def test_a_read_only_runs_dir_is_one_sentence_and_nothing_is_written(tmp_path: Path) -> None:
+    """Permission bits bind root only without CAP_DAC_OVERRIDE: as root, the command runs with
+    that capability dropped (``setpriv``); as another user, the bits bind anyway."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    from armexp.cli import main
+
+    runs = tmp_path / "runs"
+    assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
+                 f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
+    before = sorted(str(p.relative_to(runs)) for p in runs.rglob("*"))
+    prefix: list[str] = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root without setpriv (util-linux) to drop CAP_DAC_OVERRIDE")
+        prefix = ["setpriv", "--bounding-set=-dac_override,-dac_read_search"]
+    runs.chmod(0o555)
+    try:
+        command = [*prefix, sys.executable, "-m", "armexp", "simulate", "scenario=hold",
+                   f"tracking.runs_dir={runs}"]  # fmt: skip
+        done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    finally:
+        runs.chmod(0o755)
+    err = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(err) == 1, done.stderr[-2000:]
+    assert f"tracking.runs_dir={runs} is not allowed: armexp cannot write there" in err[0]
+    assert "Permission denied" in err[0]
+    assert sorted(str(p.relative_to(runs)) for p in runs.rglob("*")) == before
+
+
 def test_no_download_folder_is_left_in_the_temp_directory(tmp_path: Path) -> None:
     """Stages download configs, gains and models; the folders go when the process ends."""
     import os

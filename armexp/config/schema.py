@@ -386,6 +386,13 @@ class ReportStageConfig:
 
 
 @dataclass
+class UiStageConfig:
+    #: Where `armexp ui` serves (loopback by default: the store is not shared by accident).
+    host: str = "127.0.0.1"
+    port: int = checked(5000, between(1, 65535))
+
+
+@dataclass
 class PipelineStageConfig:
     run_name: str | None = None
     #: Reuse a FINISHED run whose stage inputs match instead of running the stage again.
@@ -418,6 +425,7 @@ class ArmexpConfig:
     eval: EvalStageConfig = field(default_factory=EvalStageConfig)
     report: ReportStageConfig = field(default_factory=ReportStageConfig)
     pipeline: PipelineStageConfig = field(default_factory=PipelineStageConfig)
+    ui: UiStageConfig = field(default_factory=UiStageConfig)
 
 
 SCHEMAS: dict[str, type] = {
