@@ -25,13 +25,13 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
 import mlflow
-from mlflow.entities import Run
+from mlflow.entities import Metric, Param, Run
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -364,10 +364,7 @@ def stage_run(
     last_run_id = run.info.run_id
     try:
         if not resume_run_id:
-            params = flatten(cfg)
-            items = sorted(params.items())
-            for i in range(0, len(items), 100):
-                retry(lambda chunk=dict(items[i : i + 100]): mlflow.log_params(chunk))  # type: ignore[misc]
+            log_batch(run.info.run_id, params=flatten(cfg))
             mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
         with Heartbeat(run.info.run_id, store_uri(cfg)):
             yield run
@@ -418,16 +415,33 @@ def log_dataframe(df: Any, name: str, folder: str | None = None) -> None:
         retry(lambda: mlflow.log_artifact(str(path), folder))
 
 
-def log_metric_history(name: str, values: Any, start_step: int = 0) -> None:
-    """Log a whole series as one metric's history (one batch call, not one per point)."""
-    from mlflow.entities import Metric
+#: MLflow's limits on one batch call.
+BATCH_METRICS, BATCH_PARAMS = 1000, 100
 
+
+def log_batch(
+    run_id: str,
+    metrics: Sequence[Metric] = (),
+    params: Mapping[str, str] | None = None,
+    client: MlflowClient | None = None,
+) -> None:
+    """Log ``metrics`` and ``params`` to a run in as few calls as MLflow's batch limits allow,
+    each retried while the store is busy (`retry`)."""
+    client = client or MlflowClient()
+    for i in range(0, len(metrics), BATCH_METRICS):
+        chunk = list(metrics[i : i + BATCH_METRICS])
+        retry(lambda c=chunk: client.log_batch(run_id, metrics=c))  # type: ignore[misc]
+    items = [Param(k, str(v)) for k, v in sorted((params or {}).items())]
+    for i in range(0, len(items), BATCH_PARAMS):
+        chunk_p = items[i : i + BATCH_PARAMS]
+        retry(lambda c=chunk_p: client.log_batch(run_id, params=c))  # type: ignore[misc]
+
+
+def log_metric_history(name: str, values: Any, start_step: int = 0) -> None:
+    """Log a whole series as one metric's history (batch calls, not one per point)."""
     now = int(time.time() * 1000)
     metrics = [Metric(name, float(v), now, start_step + i) for i, v in enumerate(values)]
-    client = MlflowClient()
-    run_id = mlflow.active_run().info.run_id  # type: ignore[union-attr]
-    for i in range(0, len(metrics), 1000):
-        retry(lambda chunk=metrics[i : i + 1000]: client.log_batch(run_id, metrics=chunk))  # type: ignore[misc]
+    log_batch(mlflow.active_run().info.run_id, metrics)  # type: ignore[union-attr]
 
 
 # ------------------------------------------------------------------------------------- lookup

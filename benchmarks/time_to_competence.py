@@ -13,8 +13,7 @@ It runs the real stages against their own MLflow store (``runs/bench``, browse i
    the baseline;
 2. ``armexp train experiment=quick`` with ``agent.max_minutes`` of training wall time,
    evaluating the deterministic policy on 50 held-out targets every ``--eval-every`` steps
-   (these checks count in the wall time when they choose the final model, ``train.keep_best``;
-   otherwise they are left out of it);
+   (their time is left out of the wall-time budget);
 3. ``armexp eval`` on the four paper tasks and 100 held-out random targets (a seed apart from
    both training and the in-training checks), for both controllers.
 

@@ -49,7 +49,7 @@ def small_sac(settings: Any, n_envs: int = 1, batch_size: int = 64) -> Any:
 
     overrides = ["agent=sac_quick", f"agent.n_envs={n_envs}", f"agent.batch_size={batch_size}"]
     agent = compose_config(overrides).agent
-    model = build_sac(agent, make_vec_env(settings, n_envs, "dummy", 0), 0, settings)
+    model = build_sac(agent, make_vec_env(settings, n_envs, "dummy", 0), 0)
     model.set_logger(Logger(folder=None, output_formats=[]))
     return model
 

@@ -50,13 +50,16 @@ def test_without_a_weight_set_in_the_tail_the_actor_is_left_as_trained() -> None
     assert all(torch.all(p == 3.0) for p in model.actor.parameters())
 
 
+AVERAGE_HALF = "+agent.aids.averaging={_target_:armexp.agents.averaging.WeightAveraging,tail:0.5}"
+
+
 def test_a_train_run_saves_the_averaged_actor_and_checkpoints_the_last_one(
     runs_dir: Path, tmp_path: Path
 ) -> None:
     import mlflow
 
     rc = main(
-        ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.average_tail=0.5",
+        ["train", "controller.gains=paper", *SMALL_TRAIN, AVERAGE_HALF,
          f"tracking.runs_dir={runs_dir}"]
     )  # fmt: skip
     assert rc == 0

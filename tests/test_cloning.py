@@ -102,29 +102,3 @@ def test_the_cloning_term_alone_makes_the_actor_imitate_the_planner(
     model.actor.optimizer.zero_grad()
     model.actor.optimizer.step()
     assert all(torch.equal(w, p) for w, p in zip(weights, model.actor.parameters(), strict=True))
-
-
-def test_the_q_filter_clones_only_where_the_critic_prefers_the_planner(
-    env: ReachEnv, demos: list[Demonstration]
-) -> None:
-    model = _model(env)
-    cloning = DemonstrationCloning(model, demos, 0.5, seed=4, q_filter=True)
-    batch = model.batch_size
-    # The critic values the planner's actions at 5 and the actor's at 0 or 10, alternately.
-    values = iter([torch.full((batch,), 5.0), torch.arange(batch) % 2 * 10.0])
-    cloning._q = lambda obs, action: next(values)  # type: ignore[method-assign]
-    state = cloning.generator.get_state()
-    loss = cloning.loss()
-    cloning.generator.set_state(state)
-    index = torch.randint(len(cloning), (batch,), generator=cloning.generator)
-    with torch.no_grad():
-        action = model.actor(cloning.obs[index], deterministic=True)
-    error = ((action - cloning.actions[index]) ** 2).mean(dim=1)
-    kept = error * (torch.arange(batch) % 2 == 0)
-    assert float(loss.detach()) == pytest.approx(0.5 * 5.0 * float(kept.mean()), rel=1e-5)
-    assert 0 < float(loss) < 0.5 * 5.0 * float(error.mean())
-    # Demonstrations that are the actor's own actions: never better, so nothing is cloned.
-    with torch.no_grad():
-        cloning.actions = model.actor(cloning.obs, deterministic=True)
-    del cloning._q
-    assert float(cloning.loss()) == 0.0

@@ -1,4 +1,5 @@
-"""The planner as a feedback policy and DAgger labels for cloning (armexp.agents.expert)."""
+"""The planner as a feedback policy, its time-to-go map, and DAgger labels for cloning
+(armexp.agents.expert)."""
 
 from __future__ import annotations
 
@@ -9,18 +10,25 @@ import pytest
 
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import Demonstration, demonstrations
-from armexp.agents.expert import ExpertLabels, TimeToGoExpert
+from armexp.agents.expert import ExpertLabels, TimeToGoExpert, TimeToGoMap
 from armexp.agents.rollout import rollout
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import segment_hits, tips
-from armexp.envs.reach import ReachEnv
+from armexp.envs.observation import TARGET
+from armexp.envs.reach import ReachEnv, ReachSettings
+from armexp.envs.workspace import breadth_first_times, fill_unreached, time_to_go
 from tests.helpers import small_sac
 
 
 @pytest.fixture(scope="module")
 def env() -> ReachEnv:
     return ReachEnv(settings_from_config(compose_config(["controller.gains=paper"])))
+
+
+@pytest.fixture(scope="module")
+def settings(env: ReachEnv) -> ReachSettings:
+    return env.settings
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +96,7 @@ def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_
         if not 0.01 < distance < expert.approach or segment_hits(tips(q, lengths), target, grown):
             continue
         obs = np.zeros(env.observation_space.shape)
-        obs[:2], obs[6:8] = target, q
+        obs[TARGET], obs[env.layout.joints] = target, q
         action = expert(obs)[0]
         moved = tips(q + action * step, lengths) - tips(q, lengths)
         # One step of the label moves the tip towards the target, along the line to it, with
@@ -97,7 +105,7 @@ def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_
         assert np.abs(action).max() == pytest.approx(1.0)
         # A tenth of a milliradian changes the label by a little, not a sign.
         nudged = obs.copy()
-        nudged[6:8] += 1e-4
+        nudged[env.layout.joints] += 1e-4
         assert np.abs(expert(nudged)[0] - action).max() < 0.05
         checked += 1
     assert checked >= 50
@@ -116,13 +124,14 @@ def test_inside_its_margin_the_expert_backs_away_from_the_obstacle(env: ReachEnv
     lengths = np.asarray(env.settings.plant.arm.lengths_array)
     obstacle = np.array([0.50, 1.30, 0.12])
     obs = np.zeros(env.observation_space.shape)
-    obs[:2], obs[6:8] = [0.15, 1.55], [0.46, 1.47]
+    obs[TARGET], obs[env.layout.joints] = [0.15, 1.55], [0.46, 1.47]
+    here = env.layout.q(obs)
 
     def clearance_after(expert: TimeToGoExpert) -> float:
-        q = obs[6:8] + expert(obs)[0] * np.asarray(env.settings.velocity_bound) * 0.03 * 5
+        q = here + expert(obs)[0] * np.asarray(env.settings.velocity_bound) * 0.03 * 5
         return float(np.linalg.norm(tips(q, lengths) - obstacle[:2]) - obstacle[2])
 
-    now = float(np.linalg.norm(tips(obs[6:8], lengths) - obstacle[:2]) - obstacle[2])
+    now = float(np.linalg.norm(tips(here, lengths) - obstacle[:2]) - obstacle[2])
     assert 0.0 < now < 0.05
     assert clearance_after(TimeToGoExpert(env.settings, 0.10)) > now
     assert clearance_after(TimeToGoExpert(env.settings, 0.10, inside_cost=1.0)) < now
@@ -168,3 +177,49 @@ def test_the_expert_commands_every_joint_of_the_three_link_arm() -> None:
     action = TimeToGoExpert(settings, 0.10)(obs)
     assert action.shape == (1, 3) and set(np.abs(action).ravel()) <= {0.0, 1.0}
     assert np.abs(action).sum() > 0
+
+
+def test_time_to_go_is_the_least_time_from_the_start_to_any_goal_cell(
+    settings: ReachSettings,
+) -> None:
+    grid, ws = TimeToGoMap(settings).grid, ReachEnv(settings).workspace
+    start = np.zeros(grid.free.shape, dtype=bool)
+    start[grid.cell(settings.q0)] = True
+    from_start = breadth_first_times(grid.free | start, start, grid.dt, grid.free.size)
+    for index in np.random.default_rng(0).integers(len(ws), size=8):
+        target = ws.points[index]
+        to_go = time_to_go(grid, target, settings.reach_threshold)
+        goal = np.linalg.norm(grid.tip - target, axis=-1) < settings.reach_threshold
+        assert np.all(to_go[goal & grid.free] == 0.0)
+        # Moves are symmetric: searching from the goal equals searching from the start.
+        assert to_go[grid.cell(settings.q0)] == pytest.approx(from_start[goal].min())
+        assert to_go[grid.cell(settings.q0)] <= ws.times[index] + 1e-9
+
+
+def test_filled_times_are_finite_and_grow_one_cell_at_a_time() -> None:
+    times = np.full((6, 5), np.inf)
+    times[0, 0] = 0.0
+    times[5, 4] = 1.0
+    filled = fill_unreached(times, 0.5)
+    assert np.isfinite(filled).all() and filled[0, 0] == 0.0 and filled[5, 4] == 1.0
+    assert filled[2, 1] == 1.0  # two Chebyshev moves from (0, 0)
+    assert filled[4, 4] == 1.5  # one move from (5, 4) beats four from (0, 0)
+    # A finite time is never shortened by a path through filled cells, and a filled cell gets
+    # its least time even where a dearer finite cell is nearer.
+    line = fill_unreached(np.array([[0.0, np.inf, np.inf, np.inf, np.inf, np.inf, 9.0]]), 0.5)
+    np.testing.assert_array_equal(line, [[0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 9.0]])
+
+
+def test_a_dearer_inside_makes_the_time_grow_faster_with_depth_into_the_margin(
+    settings: ReachSettings,
+) -> None:
+    cheap_map = TimeToGoMap(settings)
+    target = ReachEnv(settings).workspace.points[0]
+    cheap = cheap_map.times(target)
+    dear = TimeToGoMap(settings, inside_cost=10.0).times(target)
+    grid = cheap_map.grid
+    free = np.isfinite(time_to_go(grid, target, settings.reach_threshold))
+    assert (~free).any()
+    np.testing.assert_array_equal(dear[free], cheap[free])
+    # A filled cell d ≥ 1 moves from free cell f: dear = T_f + 10·d·dt ≥ cheap + 9·d·dt.
+    assert np.all(dear[~free] - cheap[~free] >= 9 * grid.dt - 1e-9)

@@ -19,7 +19,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 TUNE = ["tuner.n_iterations=2", "tuner.n_nests=4", "tuner.objective.n_scenarios=2",
         "tuner.objective.horizon=0.2"]  # fmt: skip
 TRAIN = ["agent.max_env_steps=300", "agent.learning_starts=100", "agent.net_arch=[32,32]",
-         "env.max_steps=100", "train.progress=false", "agent.demonstrations=20"]  # fmt: skip
+         "env.max_steps=100", "train.progress=false"]  # fmt: skip
 #: Appended to each stage's examples: the smallest budgets that still run every part.
 TINY = {
     "simulate": ["scenario.duration=0.1"],
@@ -61,6 +61,8 @@ def test_every_sweep_example_runs_as_written(tmp_path: Path) -> None:
             extra.remove("pipeline.seeds=[0,1]")  # the sweep gives the seeds
         if stage == "eval":
             extra.append("tasks.n_random=1")
+        if "quick" in line:
+            extra.append("agent.aids.demonstrations.episodes=20")  # sac_quick plans 1000
         _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)
 
 
@@ -84,6 +86,8 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
             line = re.sub(r"<id>,<id>", ",".join((evals * 2)[:2]), line)
         # A resume keeps its run's own budget (and refuses other overrides).
         extra = [*([] if "train.resume=" in line else TINY[stage]), *where]
+        if stage in ("train", "pipeline") and ("quick" in line or "reproduce" in line):
+            extra.append("agent.aids.demonstrations.episodes=20")  # sac_quick plans 1000
         if stage == "report":
             extra.append(f"report.out_dir={tmp_path / 'report'}")
         _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)

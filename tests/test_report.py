@@ -408,6 +408,7 @@ def test_several_agents_are_told_apart_not_averaged_together() -> None:
 def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
     from armexp.report.agent import AgentInfo, aids_of
 
+    # Runs stored before aids were composed from agent.aids set them with agent keys.
     plainish = aids_of({"relabel": 0.5, "average_tail": 0.25, "clearance": 0.03, "n_steps": 5})
     assert [a.name for a in plainish] == [
         "hindsight relabelling",
@@ -418,8 +419,21 @@ def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
     assert not info.aided and "without privileged knowledge" in info.label
     shaped = aids_of({"shaping": 30.0})
     assert AgentInfo("t", "custom", shaped).aided
-    # Add-ons composed from config lists are named by their target.
-    addons = aids_of({"addons": [{"_target_": "armexp.agents.expert.ExpertLabels"}]})
+    # Aids composed from agent.aids: the known ones by name and detail, others by target.
+    from omegaconf import OmegaConf
+
+    from armexp.config import compose_config
+
+    agent = OmegaConf.to_container(compose_config(["agent=sac_quick"]).agent)
+    assert isinstance(agent, dict)
+    quick = aids_of(agent)
+    assert [(a.name, a.privileged) for a in quick] == [
+        ("demonstrations", True), ("behaviour cloning", True), ("DAgger expert", True),
+        ("weight averaging", False),
+    ]  # fmt: skip
+    assert quick[0].detail == "1000 planner demonstrations in the replay buffer"
+    assert quick[3].detail == "final actor averaged over the last 25 % of the budget"
+    addons = aids_of({"aids": {"x": {"_target_": "armexp.agents.expert.ExpertLabels"}}})
     assert [(a.name, a.privileged) for a in addons] == [("ExpertLabels", True)]
     assert AgentInfo("t", "sac_paper", []).label == "sac_paper (plain SAC, no learning aids)"
 

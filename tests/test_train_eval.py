@@ -197,14 +197,20 @@ def test_resume_of_a_finished_run_is_refused(
     assert "FINISHED" in err and err.count("\n") == 0
 
 
-@pytest.mark.parametrize("aid", ["agent.relabel=0.5", "agent.shaping=30", "agent.bc_expert=true"])
-def test_train_with_demonstrations_cloning_and_an_aid_logs_the_demonstrations(
-    runs_dir: Path, aid: str
+AIDS = {
+    "demonstrations": "{_target_:armexp.agents.demonstrations.PlannerDemonstrations,episodes:6}",
+    "cloning": "{_target_:armexp.agents.cloning.BehaviourCloning,weight:0.5}",
+    "expert": "{_target_:armexp.agents.expert.DaggerExpert}",
+}
+
+
+def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstrations(
+    runs_dir: Path,
 ) -> None:
+    aids = [f"+agent.aids.{name}={spec}" for name, spec in AIDS.items()]
     rc = main(
-        ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150",
-         "agent.demonstrations=6", "agent.bc_weight=0.5", aid, "env.max_steps=1000",
-         f"tracking.runs_dir={runs_dir}"]
+        ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150", *aids,
+         "env.max_steps=1000", f"tracking.runs_dir={runs_dir}"]
     )  # fmt: skip
     assert rc == 0
     (run,) = _runs(runs_dir, "train")
@@ -215,6 +221,25 @@ def test_train_with_demonstrations_cloning_and_an_aid_logs_the_demonstrations(
     assert m["demonstrations/steps"] > 6 * 50  # whole episodes of seconds, not single steps
     # The demonstrations do not count as the agent's own environment steps.
     assert m["final/env_steps"] <= 152
+
+
+@pytest.mark.parametrize(
+    ("aids", "wrong"),
+    [
+        ([f"+agent.aids.cloning={AIDS['cloning']}"], "without a PlannerDemonstrations aid"),
+        (["+agent.aids.x={_target_:collections.OrderedDict}"], "is not a training aid"),
+        (["+agent.aids.x={_target_:armexp.agents.cloning.BehaviourCloning,weight:-1}"],
+         "weight=-1 must be greater than 0"),
+    ],
+)  # fmt: skip
+def test_a_bad_aid_is_one_sentence_before_any_run(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str], aids: list[str], wrong: str
+) -> None:
+    rc = main(["train", "controller.gains=paper", *SMALL_TRAIN, *aids,
+               f"tracking.runs_dir={runs_dir}"])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and wrong in err[0] and "agent.aids." in err[0], err
+    assert not (runs_dir / "mlflow.db").exists()  # stopped before the store was opened
 
 
 def test_parallel_environments_log_one_row_per_episode(runs_dir: Path) -> None:

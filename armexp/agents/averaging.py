@@ -1,8 +1,8 @@
-"""The actor's weights averaged over the end of training (``agent.average_tail``).
+"""The actor's weights averaged over the end of training (the ``averaging`` aid).
 
-At a constant learning rate SAC's actor never settles: with the ``sac_quick`` preset the
-held-out success of checks 1.5 minutes apart swings by 4 to 12 points late in a 20-minute run,
-and the model that is saved is whichever point of that swing the budget ends on. Averaging the
+At a constant learning rate SAC's actor never settles: late in a run the held-out success of
+successive checks swings by several points, and the model that is saved is whichever point of
+that swing the budget ends on. Averaging the
 weights the actor passes through over the last part of the budget (stochastic weight averaging,
 Izmailov et al., 2018; for policies, Nikishin et al., 2018) gives a model at the centre of the
 region it moves about in instead. Only the actor is averaged: it alone acts in `armexp eval`;
@@ -17,6 +17,8 @@ from typing import cast
 import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
+
+from armexp.agents.aids import TrainingAid, TrainingContext
 
 
 class ActorAverage(BaseCallback):
@@ -59,3 +61,23 @@ class ActorAverage(BaseCallback):
                 {k: (v / self.count).to(current[k].dtype) for k, v in self._sum.items()}
             )
         return self.count
+
+
+class WeightAveraging(TrainingAid):
+    """The final actor is the mean of its weights over the last ``tail`` share of the budget
+    (`ActorAverage`; ``final/averaged_actors`` says how many). The checkpoint keeps the last
+    weights; a resumed run averages from where it resumes. Uses no privileged knowledge."""
+
+    def __init__(self, tail: float) -> None:
+        if not 0.0 < float(tail) <= 1.0:
+            raise ValueError(f"tail={tail} must be in (0, 1]")
+        self.tail = float(tail)
+        self.callback: ActorAverage | None = None
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        self.callback = ActorAverage(self.tail, ctx.budget_used)
+        return [self.callback]
+
+    def finish(self, ctx: TrainingContext) -> dict[str, float]:
+        assert self.callback is not None
+        return {"final/averaged_actors": float(self.callback.apply())}

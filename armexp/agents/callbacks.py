@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import json
 import tempfile
 import time
@@ -18,7 +17,7 @@ from mlflow.tracking import MlflowClient
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import KVWriter
 
-from armexp.tracking import retry
+from armexp.tracking import log_batch, retry
 
 #: Artifact paths of a train run.
 CHECKPOINT_DIR = "checkpoint"
@@ -50,8 +49,7 @@ class MLflowOutputFormat(KVWriter):
             and not isinstance(value, bool)
             and np.isfinite(value)
         ]
-        if metrics:
-            retry(lambda: self.client.log_batch(self.run_id, metrics=metrics))
+        log_batch(self.run_id, metrics, client=self.client)
 
     def close(self) -> None:
         pass
@@ -116,9 +114,7 @@ class EpisodeStats(BaseCallback):
     def flush(self) -> None:
         self._last_flush = self.num_timesteps
         batch, self.pending = self.pending, []
-        for i in range(0, len(batch), 1000):
-            chunk = batch[i : i + 1000]
-            retry(lambda c=chunk: self.client.log_batch(self.run_id, metrics=c))  # type: ignore[misc]
+        log_batch(self.run_id, batch, client=self.client)
 
     def _on_training_end(self) -> None:
         self.flush()
@@ -197,15 +193,13 @@ class Budget(BaseCallback):
         self.steps = steps
         self.seconds = seconds
         self.reason = ""
-        #: Seconds kept back from the time budget for work after training that counts in it.
-        self.reserve: Callable[[], float] = lambda: 0.0
 
     def _on_step(self) -> bool:
         if self.stats.episodes >= self.episodes:
             self.reason = "episodes"
         elif self.steps is not None and self.num_timesteps >= self.steps:
             self.reason = "steps"
-        elif self.seconds is not None and self.stats.wall() + self.reserve() >= self.seconds:
+        elif self.seconds is not None and self.stats.wall() >= self.seconds:
             self.reason = "time"
         return not self.reason
 
@@ -222,21 +216,11 @@ class Budget(BaseCallback):
 class HeldOutEval(BaseCallback):
     """Every ``every`` environment steps, the deterministic policy on fixed held-out targets:
     logs ``eval/success_rate``, ``eval/collision_rate`` and ``eval/mean_return`` against the
-    step, with ``eval/wall_s`` the training wall time so far.
-
-    The time spent here is taken off the training clock, so a wall-time budget counts training
-    only, unless ``keep_best``: then the checks choose the model (`restore_best`) and so are
-    part of training, and their time counts. The best check is the highest success rate, ties
-    broken by the mean return, and a later check wins a full tie."""
+    step, with ``eval/wall_s`` the training wall time so far. The time spent here is taken off
+    the training clock, so a wall-time budget counts training only."""
 
     def __init__(
-        self,
-        run_id: str,
-        every: int,
-        env: Any,
-        targets: list[np.ndarray],
-        stats: EpisodeStats,
-        keep_best: bool = False,
+        self, run_id: str, every: int, env: Any, targets: list[np.ndarray], stats: EpisodeStats
     ) -> None:
         super().__init__()
         self.run_id = run_id
@@ -244,13 +228,9 @@ class HeldOutEval(BaseCallback):
         self.env = env
         self.targets = targets
         self.stats = stats
-        self.keep_best = keep_best
         self.client = MlflowClient()
         self._last = 0
         self.history: list[dict[str, float]] = []
-        self.last_seconds = 0.0
-        self.best: dict[str, float] | None = None
-        self._best_policy: dict[str, Any] | None = None
 
     def _on_step(self) -> bool:
         if self.num_timesteps - self._last >= self.every:
@@ -267,9 +247,7 @@ class HeldOutEval(BaseCallback):
             episode = rollout(self.env, self.model, {"target": target}, seed=i)
             reasons.append(episode.reason)
             returns.append(episode.episode_return)
-        self.last_seconds = time.perf_counter() - started
-        if not self.keep_best:
-            self.stats.wall_offset -= self.last_seconds
+        self.stats.wall_offset -= time.perf_counter() - started
         point = {
             "eval/success_rate": float(np.mean([r == "reached" for r in reasons])),
             "eval/collision_rate": float(np.mean([r == "collision" for r in reasons])),
@@ -279,19 +257,5 @@ class HeldOutEval(BaseCallback):
         self.history.append({"step": float(self.num_timesteps), **point})
         now = int(time.time() * 1000)
         metrics = [Metric(k, v, now, self.num_timesteps) for k, v in point.items()]
-        retry(lambda: self.client.log_batch(self.run_id, metrics=metrics))
-        if self.keep_best and (self.best is None or _score(point) >= _score(self.best)):
-            self.best = self.history[-1]
-            self._best_policy = copy.deepcopy(self.model.policy.state_dict())
+        log_batch(self.run_id, metrics, client=self.client)
         return point
-
-    def restore_best(self) -> dict[str, float]:
-        """Loads the best checked policy into the model; returns that check's history entry."""
-        if self.best is None or self._best_policy is None:
-            raise RuntimeError("no held-out check has run, so there is no best policy to keep.")
-        self.model.policy.load_state_dict(self._best_policy)
-        return self.best
-
-
-def _score(point: dict[str, float]) -> tuple[float, float]:
-    return point["eval/success_rate"], point["eval/mean_return"]

@@ -1,4 +1,4 @@
-"""Behaviour cloning of planner demonstrations inside SAC's actor update (``agent.bc_weight``).
+"""Behaviour cloning of planner demonstrations inside SAC's actor update (the ``cloning`` aid).
 
 Demonstrations in the replay buffer alone (`armexp.agents.demonstrations`) show SAC where the
 detours are, but the critic must still carry the reach reward back over hundreds of 30 ms steps
@@ -13,12 +13,6 @@ the actor's deterministic (squashed mean) action. Scaling by mean |Q| makes ``w`
 the reward's scale, as TD3+BC's normalisation does. The term is added as a gradient just before
 each actor optimiser step, so SB3's own SAC update runs unchanged.
 
-With ``q_filter`` only the demonstrated steps whose action the critic values above the actor's
-own, Q(s_d, a_d) > Q(s_d, μ(s_d)), are cloned (DDPGfD's Q-filter). Where the planner's paths
-split around an obstacle, nearby states carry demonstrations that pass it on different sides;
-cloning all of them pulls the actor towards their mean, straight into the obstacle, while the
-filter lets the critic choose a side.
-
 With ``capacity`` > 0, D also holds up to that many further labelled steps (`add`, the newest
 replacing the oldest), such as the learner's own states labelled by the planner
 (`armexp.agents.expert`); the demonstrations stay. Like the replay buffer, added steps are not
@@ -32,8 +26,10 @@ from typing import Any
 import numpy as np
 import torch
 from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.demonstrations import Demonstration
+from armexp.agents.aids import TrainingAid, TrainingContext
+from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations
 
 
 class DemonstrationCloning:
@@ -46,7 +42,6 @@ class DemonstrationCloning:
         demos: list[Demonstration],
         weight: float,
         seed: int,
-        q_filter: bool = False,
         capacity: int = 0,
     ) -> None:
         reached = [d for d in demos if d.reason == "reached"]
@@ -55,7 +50,6 @@ class DemonstrationCloning:
         device = model.device
         self.model = model
         self.weight = float(weight)
-        self.q_filter = q_filter
         obs = np.concatenate([d.obs for d in reached])
         actions = np.concatenate([d.actions for d in reached])
         self._fixed = len(actions)
@@ -68,6 +62,15 @@ class DemonstrationCloning:
         self.generator = torch.Generator(device=device).manual_seed(seed)
         self.last_loss = float("nan")
         self._handle = model.actor.optimizer.register_step_pre_hook(self._add_gradient)
+
+    def reserve(self, capacity: int) -> None:
+        """Room for ``capacity`` added steps (`add`); steps added before are dropped."""
+        fixed, device = self._fixed, self.obs.device
+        obs = torch.zeros((fixed + capacity, self.obs.shape[1]), device=device)
+        actions = torch.zeros((fixed + capacity, self.actions.shape[1]), device=device)
+        obs[:fixed], actions[:fixed] = self.obs[:fixed], self.actions[:fixed]
+        self.obs, self.actions = obs, actions
+        self._capacity, self._added = int(capacity), 0
 
     def __len__(self) -> int:
         """Steps to clone from: the demonstrated ones and those `add`ed (at most ``capacity``)."""
@@ -95,9 +98,8 @@ class DemonstrationCloning:
         action = self.model.actor(obs, deterministic=True)
         with torch.no_grad():
             q = self._q(obs, target)
-            keep = (q > self._q(obs, action)).float() if self.q_filter else torch.ones_like(q)
         error = ((action - target) ** 2).mean(dim=1)
-        return self.weight * q.abs().mean() * (keep * error).mean()
+        return self.weight * q.abs().mean() * error.mean()
 
     def _q(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         return torch.cat(self.model.critic(obs, action), dim=1).min(dim=1).values
@@ -112,3 +114,20 @@ class DemonstrationCloning:
 
     def detach(self) -> None:
         self._handle.remove()
+
+
+class BehaviourCloning(TrainingAid):
+    """The cloning term above, with weight ``weight``, on the planner's demonstrations (listed
+    before it in ``agent.aids``). Privileged: it imitates the planner."""
+
+    privileged = True
+    needs = (PlannerDemonstrations,)
+
+    def __init__(self, weight: float) -> None:
+        if not float(weight) > 0:
+            raise ValueError(f"weight={weight} must be greater than 0")
+        self.weight = float(weight)
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        ctx.cloning = DemonstrationCloning(ctx.model, ctx.demonstrations(), self.weight, ctx.seed)
+        return []

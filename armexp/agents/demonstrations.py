@@ -1,4 +1,4 @@
-"""Planner demonstrations in SAC's replay buffer (``agent.demonstrations``).
+"""Planner demonstrations in SAC's replay buffer (the ``demonstrations`` aid).
 
 The environment's workspace search (`armexp.envs.workspace`) already knows a least-time,
 obstacle-clear joint path to every target it hands out. Turned into the velocity references the
@@ -15,8 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
+from armexp.agents.aids import TrainingAid, TrainingContext
 from armexp.envs.reach import ReachEnv
 from armexp.sim.model import Array
 
@@ -39,18 +41,12 @@ class Demonstration:
         return int(self.rewards.shape[0])
 
 
-def planned_actions(env: ReachEnv, config: Array, margin: float | None = None) -> np.ndarray:
+def planned_actions(env: ReachEnv, config: Array) -> np.ndarray:
     """Normalised velocity references (K, n) that move q_d from ``q0`` along the least-time grid
-    path to ``config`` and then hold, never beyond the velocity bounds.
-
-    The path keeps the tip ``margin`` from every obstacle where such a path exists within the
-    workspace's time limit, else the environment's path margin.
-    """
+    path to ``config`` (keeping the tip the environment's path margin from every obstacle) and
+    then hold, never beyond the velocity bounds."""
     s = env.settings
-    try:
-        cells, cell_time = s.shortest_path(config, margin)
-    except ValueError:
-        cells, cell_time = s.shortest_path(config)
+    cells, cell_time = s.shortest_path(config)
     cells[0] = s.q0  # the grid's start cell is q0 rounded to the grid
     period = s.action_period
     bound = np.asarray(s.velocity_bound, dtype=np.float64)
@@ -67,10 +63,10 @@ def planned_actions(env: ReachEnv, config: Array, margin: float | None = None) -
     return out
 
 
-def demonstrate(env: ReachEnv, index: int, seed: int, margin: float | None = None) -> Demonstration:
+def demonstrate(env: ReachEnv, index: int, seed: int) -> Demonstration:
     """The planned episode to workspace target ``index`` (`planned_actions`); it ends as the
     environment says (or is cut, unended, when the planned actions run out)."""
-    actions = planned_actions(env, env.workspace.configs[index], margin)
+    actions = planned_actions(env, env.workspace.configs[index])
     obs, _ = env.reset(seed=seed, options={"target": env.workspace.points[index]})
     rows: list[tuple[Array, Array, Array, float, bool]] = []
     info: dict = {"reason": ""}
@@ -86,14 +82,11 @@ def demonstrate(env: ReachEnv, index: int, seed: int, margin: float | None = Non
     )
 
 
-def demonstrations(
-    env: ReachEnv, episodes: int, seed: int, margin: float | None = None
-) -> list[Demonstration]:
+def demonstrations(env: ReachEnv, episodes: int, seed: int) -> list[Demonstration]:
     """``episodes`` planned episodes to random workspace targets (the same ones for a seed)."""
     rng = np.random.default_rng(seed)
     return [
-        demonstrate(env, int(rng.integers(len(env.workspace))), seed + i, margin)
-        for i in range(episodes)
+        demonstrate(env, int(rng.integers(len(env.workspace))), seed + i) for i in range(episodes)
     ]
 
 
@@ -132,3 +125,22 @@ def fill_replay(model: OffPolicyAlgorithm, demos: list[Demonstration]) -> None:
             for j in range(model.n_envs)
         ]
         buffer.add(obs[t], next_obs[t], actions[t], rewards[t], ends[t], infos)
+
+
+class PlannerDemonstrations(TrainingAid):
+    """``episodes`` planner episodes in the replay buffer before training (module doc); a
+    resumed run's buffer starts empty and gets none. Privileged: the planner knows the
+    obstacles."""
+
+    privileged = True
+
+    def __init__(self, episodes: int) -> None:
+        if int(episodes) < 1:
+            raise ValueError(f"episodes={episodes} must be at least 1")
+        self.episodes = int(episodes)
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        ctx.demo_episodes = self.episodes
+        if not ctx.resumed:
+            fill_replay(ctx.model, ctx.demonstrations())
+        return []

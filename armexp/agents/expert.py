@@ -1,17 +1,17 @@
-"""The planner as a feedback policy, and cloning it on the states SAC visits (``agent.bc_expert``).
+"""The planner as a feedback policy, and cloning it on the states SAC visits (DAgger).
 
 Cloning the planner's demonstrated episodes (`armexp.agents.cloning`) teaches the actor on the
 planner's own states only. Once the actor strays from them (a slightly different detour, a lag
-behind the path), nothing says how to get back, and small errors compound into the collisions
-and joint-limit folds that remain after 20 minutes. DAgger (Ross, Gordon & Bagnell, 2011) closes
-that gap by asking the expert what it would do on the learner's states. The expert here is the
-least-time map of `armexp.agents.shaping.TimeToGoPotential`, which knows the time to go T(q) from
-every joint configuration to the target: its action at an observation is the bounded velocity
-command c ∈ {−1, 0, 1}ⁿ whose motion held for ``lookahead`` environment steps lowers T
-most (ties go to the command that moves fewer joints); where that is to hold still, the one
-that brings the tip closest to the target. Within ``approach`` of the target, where the straight
-line to it is clear, the action instead moves the tip straight at the target at the largest
-speed the bounds allow (a damped least-squares step through the arm's Jacobian).
+behind the path), nothing says how to get back, and small errors compound into collisions and
+joint-limit folds. DAgger (Ross, Gordon & Bagnell, 2011) closes that gap by asking the expert
+what it would do on the learner's states. The expert here is the least-time map `TimeToGoMap`,
+which knows the time to go T(q) from every joint configuration to the target: its action at an
+observation is the bounded velocity command c ∈ {−1, 0, 1}ⁿ whose motion held for
+``lookahead`` environment steps lowers T most (ties go to the command that moves fewer joints);
+where that is to hold still, the one that brings the tip closest to the target. Within
+``approach`` of the target, where the straight line to it is clear, the action instead moves the
+tip straight at the target at the largest speed the bounds allow (a damped least-squares step
+through the arm's Jacobian).
 
 The map keeps the tip ``margin`` from every obstacle, and inside that margin each grid move
 costs ``inside_cost`` free ones, so that where the tracking lag has carried the tip in, the
@@ -23,25 +23,77 @@ flip sign over a few hundredths of a radian (a several-step move overshoots the 
 side and falls short from the other), which a regression averages to a stop just outside the
 reach threshold. The straight approach is continuous in the state and only vanishes on the
 target, so the regressed action still points in.
-
-How these choices were measured is in ``docs/sac_quick_history.md``.
 """
 
 from __future__ import annotations
 
 import itertools
+from collections import OrderedDict
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.cloning import DemonstrationCloning
-from armexp.agents.shaping import JOINTS_FROM, TARGET, TimeToGoPotential
+from armexp.agents.aids import TrainingAid, TrainingContext
+from armexp.agents.cloning import BehaviourCloning, DemonstrationCloning
 from armexp.envs.geometry import segment_hits, tips
+from armexp.envs.observation import ObservationLayout
 from armexp.envs.reach import ReachSettings
+from armexp.envs.workspace import JointGrid, fill_unreached, time_to_go
 from armexp.sim.dynamics import tip_jacobian
 from armexp.sim.model import Array
+
+
+class TimeToGoMap:
+    """T(q, target): the least time (s) in which a velocity-bounded motion that keeps the tip
+    ``settings.path_margin`` from every obstacle brings it within the reach threshold (a
+    breadth-first search over the joint grid, `armexp.envs.workspace.time_to_go`), bilinear
+    between grid cells.
+
+    A cell with no finite time (its tip within the margin of an obstacle, or cut off from the
+    target) gets the least time over paths through such cells to a finite cell, at
+    ``inside_cost`` time cells per grid move, so that T stays continuous where the arm skirts an
+    obstacle (finite times are never shortened through them). Maps are kept for the ``cache``
+    most recent targets.
+    """
+
+    def __init__(self, settings: ReachSettings, cache: int = 64, inside_cost: float = 1.0) -> None:
+        self.inside_cost = float(inside_cost)
+        self.threshold = settings.reach_threshold
+        self.n = int(settings.q0.shape[0])
+        self.grid: JointGrid = settings.joint_grid()
+        self._maps: OrderedDict[tuple[float, ...], Array] = OrderedDict()
+        self._cache = int(cache)
+
+    def times(self, target: Array) -> Array:
+        """T on every grid cell for ``target``."""
+        key = tuple(float(v) for v in target)
+        if key in self._maps:
+            self._maps.move_to_end(key)
+            return self._maps[key]
+        t = time_to_go(self.grid, np.asarray(target, dtype=np.float64), self.threshold)
+        t = fill_unreached(t, self.grid.dt * self.inside_cost)
+        self._maps[key] = t
+        if len(self._maps) > self._cache:
+            self._maps.popitem(last=False)
+        return t
+
+    def times_at(self, target: Array, q: Array) -> Array:
+        """T (s) to ``target`` at each row of joint angles ``q`` (k, n), bilinear between cells."""
+        t = self.times(target)
+        lo, frac = [], []
+        for j, axis in enumerate(self.grid.axes):
+            x = np.clip((q[:, j] - axis[0]) / (axis[1] - axis[0]), 0.0, len(axis) - 1.0)
+            i = np.minimum(np.floor(x).astype(np.int64), len(axis) - 2)
+            lo.append(i)
+            frac.append(x - i)
+        value = np.zeros(q.shape[0])
+        for corner in range(2**self.n):
+            bits = [(corner >> j) & 1 for j in range(self.n)]
+            w = np.prod([f if b else 1.0 - f for f, b in zip(frac, bits, strict=True)], axis=0)
+            value += w * t[tuple(i + b for i, b in zip(lo, bits, strict=True))]
+        return value
 
 
 class TimeToGoExpert:
@@ -64,10 +116,9 @@ class TimeToGoExpert:
         grown = np.asarray(settings.obstacles, dtype=np.float64).reshape(-1, 3).copy()
         grown[:, 2] += settings.path_margin
         self._grown = grown
-        self.potential = TimeToGoPotential(
-            replace(settings, path_margin=margin), 1.0, cache, inside_cost=inside_cost
-        )
-        n = self.potential.n
+        self.map = TimeToGoMap(replace(settings, path_margin=margin), cache, inside_cost)
+        n = self.map.n
+        self.layout = ObservationLayout(n, int(np.asarray(settings.obstacles).size // 3))
         commands = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=n)))
         self.commands = commands[np.argsort(np.abs(commands).sum(axis=1), kind="stable")]
         self._moves = self.commands * self._step * lookahead
@@ -76,20 +127,20 @@ class TimeToGoExpert:
     def __call__(self, obs: Array) -> np.ndarray:
         """Actions (k, n) for the observations ``obs`` (k, d)."""
         obs = np.atleast_2d(np.asarray(obs, dtype=np.float64))
-        n = self.potential.n
-        out = np.empty((obs.shape[0], n), dtype=np.float32)
+        out = np.empty((obs.shape[0], self.map.n), dtype=np.float32)
         for row, o in enumerate(obs):
-            straight = self._straight(o[JOINTS_FROM : JOINTS_FROM + n], o[TARGET])
+            here, target = self.layout.q(o), self.layout.target(o)
+            straight = self._straight(here, target)
             if straight is not None:
                 out[row] = straight
                 continue
-            q = o[JOINTS_FROM : JOINTS_FROM + n] + self._moves
-            best = int(np.argmin(self.potential.times_at(o[TARGET], q)))
+            q = here + self._moves
+            best = int(np.argmin(self.map.times_at(target, q)))
             # To hold (commands[0], the only one of |c|₁ = 0) is right on the target, but T is
             # also flat or at a local minimum of the interpolation a millimetre outside the
             # reach threshold: the tip's distance to the target decides there.
             if best == 0:
-                error = np.linalg.norm(tips(q, self._lengths) - o[TARGET], axis=1)
+                error = np.linalg.norm(tips(q, self._lengths) - target, axis=1)
                 best = int(np.argmin(error))
             out[row] = self.commands[best]
         return out
@@ -127,3 +178,25 @@ class ExpertLabels(BaseCallback):
         obs = np.asarray(self.locals["new_obs"])
         self.cloning.add(obs, self.expert(obs))
         return True
+
+
+class DaggerExpert(TrainingAid):
+    """DAgger: every state the training environments visit is cloned with the action of a
+    `TimeToGoExpert` kept ``margin`` (m) from obstacles that compares commands held
+    ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the
+    demonstrations. Needs the cloning aid before it. Privileged: the planner labels."""
+
+    privileged = True
+    needs = (BehaviourCloning,)
+
+    def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
+        if not float(margin) > 0 or int(lookahead) < 1:
+            raise ValueError(f"margin={margin} must be > 0 and lookahead={lookahead} at least 1")
+        self.margin, self.lookahead = float(margin), int(lookahead)
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        assert ctx.cloning is not None  # `needs` put the cloning aid first
+        ctx.cloning.reserve(int(ctx.model.buffer_size))
+        return [
+            ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), ctx.cloning)
+        ]

@@ -166,7 +166,6 @@ def validate(cfg: DictConfig) -> None:
     _cross_checks(cfg)
     _workspace_checks(cfg)
     _agent_checks(cfg)
-    _train_checks(cfg)
 
 
 def _walk(node: Any, path: str) -> None:
@@ -332,31 +331,18 @@ def _cross_checks(cfg: DictConfig) -> None:
             )
 
 
-def _train_checks(cfg: DictConfig) -> None:
-    train = cfg.get("train")
-    if train is not None and train.keep_best and not train.eval_every:
-        raise fail(
-            "train.keep_best", True, "it must be false with train.eval_every=0 (no checks to keep)"
-        )
-
-
 def _agent_checks(cfg: DictConfig) -> None:
     agent = cfg.get("agent")
     if agent is None or OmegaConf.is_missing(cfg, "agent"):
         return
-    if agent.relabel > 0 and agent.shaping > 0:
-        raise fail(
-            "agent.relabel", agent.relabel,
-            f"it must be 0 with agent.shaping={agent.shaping} (relabelled rewards are unshaped)",
-        )  # fmt: skip
-    if agent.bc_weight > 0 and agent.demonstrations == 0:
-        raise fail(
-            "agent.bc_weight", agent.bc_weight, "it must be 0 without agent.demonstrations to clone"
-        )
-    if agent.bc_expert and agent.bc_weight == 0:
-        raise fail(
-            "agent.bc_expert", True, "it must be false with agent.bc_weight=0 (nothing clones)"
-        )
+    for name, spec in (agent.get("aids") or {}).items():
+        target = spec.get("_target_") if isinstance(spec, DictConfig) else None
+        if not isinstance(target, str) or "." not in target:
+            raise fail(
+                f"agent.aids.{name}", OmegaConf.to_container(spec) if isinstance(
+                    spec, DictConfig) else spec,
+                "each aid is a config with a _target_ naming its class (armexp.agents.aids)",
+            )  # fmt: skip
 
 
 def _need_whole_periods(key: str, value: float, dt: float) -> None:

@@ -183,12 +183,6 @@ class AgentConfig:
     learning_starts: int = checked(1000, at_least(0))
     gamma: float = checked(0.995, between(0.0, 1.0))
     learning_rate: float = checked(0.001, _pos)
-    #: Learning rate at the end of the budget, reached linearly from ``learning_rate`` over
-    #: whichever budget (episodes, steps or minutes) runs out first (None: constant).
-    lr_final: float | None = checked(None, or_null(_pos))
-    #: Share of the budget, at its end, over which the actor's weights are averaged into the
-    #: final model (`armexp.agents.averaging`; 0: the last weights).
-    average_tail: float = checked(0.0, between(0.0, 1.0))
     episodes: int = checked(20000, at_least(1))
     train_freq: int = checked(1, at_least(1))
     gradient_steps: int = checked(1, at_least(1))
@@ -201,27 +195,6 @@ class AgentConfig:
     )
     #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
     n_steps: int = checked(1, at_least(1))
-    #: Share of each replayed batch given hindsight targets (`armexp.agents.relabel`; 0 = off).
-    relabel: float = checked(0.0, between(0.0, 1.0))
-    #: Planner episodes put in the replay buffer before training (`armexp.agents.demonstrations`).
-    demonstrations: int = checked(0, at_least(0))
-    #: Obstacle clearance (m) of the demonstrated paths where possible (None: env.path_margin).
-    demo_margin: float | None = checked(None, or_null(_pos))
-    #: Weight of the behaviour-cloning term on those demonstrations (`armexp.agents.cloning`).
-    bc_weight: float = checked(0.0, nonnegative())
-    #: Clone only demonstrated actions the critic values above the actor's own (Q-filter).
-    bc_q_filter: bool = False
-    #: Also clone the planner's action on every state the agent visits (DAgger; the planner's
-    #: least-time map kept ``expert_margin`` (m) from obstacles, `armexp.agents.expert`).
-    bc_expert: bool = False
-    expert_margin: float = checked(0.10, _pos)
-    #: Environment steps the expert holds each candidate command for when comparing times to go.
-    expert_lookahead: int = checked(5, at_least(1))
-    #: Training only: a collision is counted when the tip comes this close (m) to an obstacle,
-    #: so the policy keeps clear of it; checks while training and `armexp eval` use Table I's.
-    clearance: float = checked(0.0, nonnegative())
-    #: Reward per second of the planner's time to go in potential shaping (`armexp.agents.shaping`).
-    shaping: float = checked(0.0, nonnegative())
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
     #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
     n_envs: int = checked(1, at_least(1))
@@ -232,6 +205,9 @@ class AgentConfig:
     device: str = checked(
         "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
     )
+    #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
+    #: (`armexp.agents.aids`). None for the paper's plain SAC.
+    aids: dict[str, Any] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------- env
@@ -331,14 +307,10 @@ class TrainStageConfig:
     eval_every: int = checked(0, at_least(0))
     eval_targets: int = checked(50, at_least(1))
     eval_seed: int = checked(10_007, at_least(0))
-    #: With eval_every: the final model is the checked policy with the best held-out success
-    #: (the policy as trained is checked once more at the end); the checks then count as
-    #: training time.
-    keep_best: bool = False
     progress: bool = True
     #: Torch threads of the training process (null: torch's default, one per core). One by
-    #: default: on 2 cores one thread trains faster than two even alone, and two jobs with two
-    #: threads each fall to about a quarter of that speed (benchmarks/contention.py).
+    #: default, so that jobs sharing a machine do not slow each other down
+    #: (benchmarks/contention.py).
     torch_threads: int | None = checked(1, or_null(at_least(1)))
 
 

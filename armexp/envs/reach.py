@@ -9,7 +9,6 @@ one compiled call of `armexp.sim.core`.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,6 +18,7 @@ from gymnasium import spaces
 
 from armexp.envs.geometry import Array, joint_positions
 from armexp.envs.kernel import env_step, observe
+from armexp.envs.observation import ObservationLayout
 from armexp.envs.render import Canvas
 from armexp.envs.workspace import (
     JointGrid,
@@ -66,9 +66,6 @@ class ReachSettings:
     workspace_cells: int = 40_000
     #: The reference generator between actions (`armexp.sim.core.REFERENCES`).
     reference: str = "ramp"
-    #: A training aid, not Table I (0): a step also collides when the tip's path comes within
-    #: this distance (m) of an obstacle's surface. Observations and targets are unchanged.
-    collision_clearance: float = 0.0
 
     @property
     def hold_steps(self) -> int:
@@ -127,12 +124,12 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Observation Space
     ``Box((6 + n + m,), float32)`` as eq. 5a (eq. 4a when m = 0):
     target position (x, y), tip − target (x, y), tip position (x, y), joint angles q (n), and
-    the distance from the tip to the surface of each of the m obstacles (negative inside).
+    the distance from the tip to the surface of each of the m obstacles (negative inside);
+    ``env.layout`` (`armexp.envs.observation.ObservationLayout`) says where each part sits.
 
     ## Rewards (Table I)
     * ``+reach_reward`` (200) when the tip error falls below ``reach_threshold`` (0.04 m);
-    * ``−collision_penalty`` (100) when the tip's path enters an obstacle (or comes within
-      ``collision_clearance`` of one, a training aid that is 0 in Table I);
+    * ``−collision_penalty`` (100) when the tip's path enters an obstacle;
     * ``−boundary_penalty`` (50) when a joint leaves its limits (or the simulation diverges);
     * otherwise ``−log10(1 + error − threshold)``, and ``growth_penalty`` (1) less when the
       error grew during the step.
@@ -179,19 +176,11 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._lower = np.asarray(s.joint_lower, dtype=np.float64)
         self._upper = np.asarray(s.joint_upper, dtype=np.float64)
         self._obstacles = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 3)
-        self._collide = self._obstacles + np.array([0.0, 0.0, s.collision_clearance])
         self.workspace = s.workspace()
         self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0, reference=s.reference)
 
-        reach = float(self._lengths.sum())
-        far = reach + (float(np.hypot(*self._obstacles[:, :2].T).max()) if m else 0.0)
-        low = np.concatenate(
-            [[-reach] * 2, [-2 * reach] * 2, [-reach] * 2, self._lower - math.pi,
-             -self._obstacles[:, 2] if m else []]
-        )  # fmt: skip
-        high = np.concatenate(
-            [[reach] * 2, [2 * reach] * 2, [reach] * 2, self._upper + math.pi, [far] * m]
-        )
+        self.layout = ObservationLayout(n, m)
+        low, high = self.layout.bounds(self._lengths, self._lower, self._upper, self._obstacles)
         self.observation_space = spaces.Box(low.astype(np.float32), high.astype(np.float32))
         self._obs_low, self._obs_high = low, high
         self._params = np.array(
@@ -252,7 +241,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         reward, status, done, self.error = env_step(
             sim.state, sim._work, sim._model, sim.gains, sim.kind, sim.plant.dt, sim._key,
             sim.step_index, self._hold, np.asarray(action, dtype=np.float64), self._bound,
-            self._lower, self._upper, self._obstacles, self._collide, self.target, self.tip,
+            self._lower, self._upper, self._obstacles, self._obstacles, self.target, self.tip,
             self._params, self._obs_low, self._obs_high, obs, log, sim.ramp,
         )  # fmt: skip
         sim.step_index += done

@@ -2,9 +2,8 @@
 
 The paper's agent is model-free SAC that learns from interaction alone (DESIGN §7). A preset that
 adds a learning aid using privileged knowledge of the planner or the obstacles (demonstrations,
-cloning, an expert's labels, shaping by the planner's time to go) is *aided*, and every table
-built from it says so. Aids that use no such knowledge (relabelling, weight averaging, …) are
-named too, but do not make a run aided.
+cloning, an expert's labels) is *aided*, and every table built from it says so. Aids that use no
+such knowledge (weight averaging, …) are named too, but do not make a run aided.
 
 Everything is read from the train run: the preset from the tag ``armexp.agent_preset`` (Hydra's
 ``agent`` group choice) or else the param ``agent.name``; the aids from the run's resolved
@@ -15,7 +14,7 @@ the last values logged while training).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,7 +31,6 @@ PRIVILEGED_MODULES = (
     "armexp.agents.demonstrations",
     "armexp.agents.cloning",
     "armexp.agents.expert",
-    "armexp.agents.shaping",
 )
 #: Train-run metrics of the budget spent, newest name first (final/* are logged at the end;
 #: the others while training, so a KILLED run still shows how far it got).
@@ -102,65 +100,60 @@ def _g(value: Any) -> str:
     return f"{_num(value):g}"
 
 
+#: Aids composed from ``agent.aids`` (``_target_``): a caption's name, Table II's detail from the
+#: aid's arguments, and whether it uses privileged knowledge.
+KNOWN_AIDS: dict[str, tuple[str, Callable[[Mapping[str, Any]], str], bool]] = {
+    "armexp.agents.demonstrations.PlannerDemonstrations": (
+        "demonstrations",
+        lambda a: f"{int(_num(a.get('episodes')))} planner demonstrations in the replay buffer",
+        True,
+    ),
+    "armexp.agents.cloning.BehaviourCloning": (
+        "behaviour cloning",
+        lambda a: f"behaviour cloning of the demonstrations (weight {_g(a.get('weight'))})",
+        True,
+    ),
+    "armexp.agents.expert.DaggerExpert": (
+        "DAgger expert",
+        lambda a: "DAgger: the planner's action cloned on every visited state",
+        True,
+    ),
+    "armexp.agents.averaging.WeightAveraging": (
+        "weight averaging",
+        lambda a: (
+            f"final actor averaged over the last {_num(a.get('tail')) * 100:g} % of the budget"
+        ),
+        False,
+    ),
+}
+#: Runs stored before aids were composed from ``agent.aids`` set them with agent keys: the key,
+#: the aid's name, its detail from the key's value, and whether it is privileged.
+LEGACY_AIDS: tuple[tuple[str, str, Callable[[Any], str], bool], ...] = (
+    ("demonstrations", "demonstrations",
+     lambda v: f"{int(_num(v))} planner demonstrations in the replay buffer", True),
+    ("bc_weight", "behaviour cloning",
+     lambda v: f"behaviour cloning of the demonstrations (weight {_g(v)})", True),
+    ("bc_expert", "DAgger expert",
+     lambda v: "DAgger: the planner's action cloned on every visited state", True),
+    ("shaping", "planner reward shaping",
+     lambda v: f"reward shaped by the planner's time to go ({_g(v)} per s)", True),
+    ("relabel", "hindsight relabelling",
+     lambda v: f"hindsight relabelling ({_num(v) * 100:g} % of each batch)", False),
+    ("clearance", "collision clearance",
+     lambda v: f"collisions counted {_g(v)} m from the obstacles in training", False),
+    ("average_tail", "weight averaging",
+     lambda v: f"final actor averaged over the last {_num(v) * 100:g} % of the budget", False),
+)  # fmt: skip
+
+
 def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) -> list[Aid]:
     """The learning aids an agent config (and the train stage's config) turn on."""
     train = train or {}
     out: list[Aid] = []
-    if _num(agent.get("demonstrations")) > 0:
-        out.append(
-            Aid(
-                "demonstrations",
-                f"{int(_num(agent['demonstrations']))} planner demonstrations in the replay buffer",
-                True,
-            )
-        )
-    if _num(agent.get("bc_weight")) > 0:
-        q_filter = ", Q-filtered" if agent.get("bc_q_filter") else ""
-        out.append(
-            Aid(
-                "behaviour cloning",
-                f"behaviour cloning of the demonstrations (weight {_g(agent['bc_weight'])}"
-                f"{q_filter})",
-                True,
-            )
-        )
-    if agent.get("bc_expert") is True:
-        out.append(
-            Aid("DAgger expert", "DAgger: the planner's action cloned on every visited state", True)
-        )
-    if _num(agent.get("shaping")) > 0:
-        out.append(
-            Aid(
-                "planner reward shaping",
-                f"reward shaped by the planner's time to go ({_g(agent['shaping'])} per s)",
-                True,
-            )
-        )
-    if _num(agent.get("relabel")) > 0:
-        out.append(
-            Aid(
-                "hindsight relabelling",
-                f"hindsight relabelling ({_num(agent['relabel']) * 100:g} % of each batch)",
-                False,
-            )
-        )
-    if _num(agent.get("clearance")) > 0:
-        out.append(
-            Aid(
-                "collision clearance",
-                f"collisions counted {_g(agent['clearance'])} m from the obstacles in training",
-                False,
-            )
-        )
-    if _num(agent.get("average_tail")) > 0:
-        out.append(
-            Aid(
-                "weight averaging",
-                f"final actor averaged over the last {_num(agent['average_tail']) * 100:g} % of "
-                "the budget",
-                False,
-            )
-        )
+    for key, name, detail, privileged in LEGACY_AIDS:
+        value = agent.get(key)
+        if value is True or (value is not False and _num(value) > 0):
+            out.append(Aid(name, detail(value), privileged))
     if train.get("keep_best") is True and _num(train.get("eval_every")) > 0:
         out.append(
             Aid(
@@ -169,7 +162,15 @@ def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) ->
                 False,
             )
         )
+    aids = agent.get("aids")
+    for spec in aids.values() if isinstance(aids, Mapping) else ():
+        target = spec.get("_target_") if isinstance(spec, Mapping) else None
+        if isinstance(target, str) and target in KNOWN_AIDS:
+            name, detail, privileged = KNOWN_AIDS[target]
+            out.append(Aid(name, detail(spec), privileged))
     for target in _targets(agent):
+        if target in KNOWN_AIDS:
+            continue
         module, _, name = target.rpartition(".")
         privileged = any(module.startswith(m) for m in PRIVILEGED_MODULES)
         out.append(Aid(name or target, f"add-on {target}", privileged))

@@ -6,20 +6,10 @@ controller and robot; its id is tagged ``armexp.tune_run``) or, with ``train.gai
 
 Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
 per episode, reward, length, success and collision with their rates over the last 100 episodes.
-With ``agent.demonstrations`` the replay buffer starts with that many planner episodes
-(`armexp.agents.demonstrations`, ``demonstrations/*`` metrics; their time counts in the budget),
-and ``agent.bc_weight`` > 0 adds a behaviour-cloning term on them to the actor loss
-(`armexp.agents.cloning`, ``train/bc_loss``); ``agent.bc_expert`` clones the planner's action
-on every state the agent visits too (`armexp.agents.expert`). ``agent.shaping`` > 0 trains on
-Table I's reward shaped by the planner's time to go (`armexp.agents.shaping`; logged episode
-rewards stay Table I's).
-``agent.clearance`` > 0 trains with collisions counted that close to the obstacles (held-out
-checks use Table I's), ``agent.lr_final`` decays the learning rate over the budget, and
-``agent.average_tail`` makes the final actor the average of its weights over the end of the
-budget (`armexp.agents.averaging`; ``final/averaged_actors``; the checkpoint keeps the last
-weights, and a resumed run averages from where it resumes).
-With ``train.eval_every`` the policy is checked on held-out targets while training
-(``eval/*``); ``train.keep_best`` makes the best check the final model.
+The learning aids of ``agent.aids`` (`armexp.agents.aids`: planner demonstrations, behaviour
+cloning, the DAgger expert, weight averaging) are built from their ``_target_`` and applied in
+order. With ``train.eval_every`` the policy is checked on held-out targets while training
+(``eval/*``).
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
 buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
@@ -31,7 +21,6 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import replace
 from typing import Any
 
 import mlflow
@@ -43,7 +32,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
 from armexp import tracking
-from armexp.agents.averaging import ActorAverage
+from armexp.agents.aids import TrainingContext, build_aids
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
     MODEL_DIR,
@@ -57,11 +46,7 @@ from armexp.agents.callbacks import (
     Progress,
     log_model,
 )
-from armexp.agents.cloning import DemonstrationCloning
-from armexp.agents.demonstrations import demonstrations, fill_replay
-from armexp.agents.expert import ExpertLabels, TimeToGoExpert
 from armexp.agents.sac import ResumableSAC, build_sac, load_sac
-from armexp.agents.shaping import ShapedRewards, TimeToGoPotential
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
@@ -109,6 +94,7 @@ def step_budget(cfg: DictConfig) -> int:
 def run(cfg: DictConfig) -> dict[str, float]:
     if cfg.train.resume:
         return resume(cfg)
+    build_aids(cfg.agent.aids)  # a bad aid stops here, before a run exists
     gains, tags = controller_gains_for(cfg)
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
     with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
@@ -191,19 +177,14 @@ def _learn(
     state: dict[str, Any],
 ) -> dict[str, float]:
     agent, tr = cfg.agent, cfg.train
+    aids = build_aids(agent.aids)
     if tr.torch_threads:
         torch.set_num_threads(int(tr.torch_threads))
-    true_settings = settings_from_config(cfg, gains=gains)
-    clearance = float(agent.clearance)
-    settings = replace(true_settings, collision_clearance=clearance)
+    settings = settings_from_config(cfg, gains=gains)
     venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
-    potential = None
-    if float(agent.shaping) > 0:
-        potential = TimeToGoPotential(settings, float(agent.shaping))
-        venv = ShapedRewards(venv, potential, float(agent.gamma))
     model: ResumableSAC
     if model_path is None:
-        model = build_sac(agent, venv, int(cfg.seed), settings)
+        model = build_sac(agent, venv, int(cfg.seed))
     else:
         model = load_sac(model_path, venv, agent)
         model.resumed = True
@@ -220,11 +201,6 @@ def _learn(
         stats, int(agent.episodes), total, None if minutes is None else float(minutes) * 60.0
     )
 
-    def used() -> float:
-        return budget.used(model.num_timesteps)
-
-    model.budget_used = used
-
     def snapshot() -> dict[str, Any]:
         return {
             "num_timesteps": int(model.num_timesteps),
@@ -234,52 +210,20 @@ def _learn(
             "recent": [[bool(s), bool(c)] for s, c in stats.recent],
         }
 
-    cloning = float(agent.bc_weight) > 0
-    labels: list[ExpertLabels] = []
-    if int(agent.demonstrations) and (model_path is None or cloning):
-        # Inside the wall-time budget: `stats` started its clock above. A resumed run plans the
-        # same episodes again only for the cloning term; its replay buffer starts empty.
-        margin = agent.demo_margin
-        if margin is None and clearance > 0:
-            # Paths as clear of the grown obstacles as the planner keeps of the true ones.
-            margin = settings.path_margin + clearance
-        demos = demonstrations(ReachEnv(settings), int(agent.demonstrations), int(cfg.seed), margin)
-        if model_path is None:
-            shaped = [potential.shape(d, float(agent.gamma)) for d in demos] if potential else demos
-            fill_replay(model, shaped)
-        if cloning:
-            imitation = DemonstrationCloning(
-                model, demos, float(agent.bc_weight), int(cfg.seed), bool(agent.bc_q_filter),
-                capacity=int(agent.buffer_size) if agent.bc_expert else 0,
-            )  # fmt: skip
-            if agent.bc_expert:
-                expert = TimeToGoExpert(
-                    settings, float(agent.expert_margin), int(agent.expert_lookahead)
-                )
-                labels = [ExpertLabels(expert, imitation)]
-        reached = sum(d.reason == "reached" for d in demos) / len(demos)
-        mlflow.log_metrics(
-            {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
-             "demonstrations/steps": sum(map(len, demos)), "demonstrations/wall_s": stats.wall()}
-        )  # fmt: skip
     checkpoint = Checkpoint(int(tr.checkpoint_every), snapshot)
-    callbacks: list[Any] = [stats, budget, checkpoint, *labels]
-    heldout = None
+    callbacks: list[Any] = [stats, budget, checkpoint]
+    # Inside the wall-time budget: `stats` started its clock above.
+    context = TrainingContext(
+        model, settings, int(cfg.seed), resumed=model_path is not None,
+        budget_used=lambda: budget.used(model.num_timesteps), wall=stats.wall,
+    )  # fmt: skip
+    for aid in aids:
+        callbacks += aid.setup(context)
     if tr.eval_every:
-        probe = ReachEnv(true_settings)
+        probe = ReachEnv(settings)
         rng = np.random.default_rng(int(tr.eval_seed))
         targets = [probe.workspace.sample(rng) for _ in range(int(tr.eval_targets))]
-        heldout = HeldOutEval(
-            run_id, int(tr.eval_every), probe, targets, stats, keep_best=bool(tr.keep_best)
-        )
-        if heldout.keep_best:
-            # The closing check counts in the budget too: keep the last one's time for it.
-            budget.reserve = lambda: heldout.last_seconds
-        callbacks.append(heldout)
-    averager = None
-    if float(agent.average_tail) > 0:
-        averager = ActorAverage(float(agent.average_tail), used)
-        callbacks.append(averager)
+        callbacks.append(HeldOutEval(run_id, int(tr.eval_every), probe, targets, stats))
     if tr.progress:
         callbacks.append(Progress(total, stats, initial=done_steps))
     started = time.perf_counter()
@@ -301,14 +245,8 @@ def _learn(
     stats.flush()
     checkpoint.save()
     kept: dict[str, float] = {}
-    if averager is not None:
-        kept["final/averaged_actors"] = float(averager.apply())
-    if heldout is not None and heldout.keep_best:
-        last = heldout.history[-1]["step"] if heldout.history else None
-        if averager is not None or last != model.num_timesteps:
-            heldout.evaluate()  # the policy as trained (or averaged) competes too
-        best = heldout.restore_best()
-        kept = {"final/kept_step": best["step"], "final/kept_success": best["eval/success_rate"]}
+    for aid in aids:
+        kept.update(aid.finish(context))
     log_model(model, MODEL_DIR, snapshot())
     steps = int(model.num_timesteps)
     summary = {

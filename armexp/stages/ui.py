@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shlex
+import signal
 import subprocess
 import sys
 
@@ -21,4 +22,12 @@ def run(cfg: DictConfig) -> None:
     # MLflow's GenAI job runner (a process and two queue consumers) has nothing to do for armexp's
     # runs; without it the UI starts sooner and Ctrl-C stops one process. A user's setting wins.
     env = {"MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false", **os.environ}
-    subprocess.run(cmd, check=False, env=env)
+    # In its own session: Ctrl-C reaches armexp alone, which stops the server with SIGTERM, its
+    # quiet shutdown (on SIGINT the server re-raises it after shutting down, with a traceback).
+    server = subprocess.Popen(cmd, env=env, start_new_session=True)
+    try:
+        server.wait()
+    except KeyboardInterrupt:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=60)
+        print("armexp ui: stopped")

@@ -1,0 +1,117 @@
+"""Learning aids: training add-ons that `armexp train` composes from ``agent.aids``.
+
+``agent.aids`` maps a name to a config with a ``_target_`` (Hydra instantiation), in the order
+they apply, as ``callbacks:`` lists do in lightning-hydra-template::
+
+    aids:
+      demonstrations: {_target_: armexp.agents.demonstrations.PlannerDemonstrations, episodes: 1000}
+      cloning: {_target_: armexp.agents.cloning.BehaviourCloning, weight: 3.0}
+
+Each aid gets the model and the environment's settings before training (`TrainingAid.setup`,
+which may return SB3 callbacks) and may change the model after it (`TrainingAid.finish`,
+which returns ``final/*`` metrics). Aids that use the planner's or the obstacles' knowledge
+make a run *aided* (DESIGN §7); the report says so for every table built from one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from armexp.config import ConfigError
+from armexp.envs.reach import ReachSettings
+
+if TYPE_CHECKING:
+    from armexp.agents.cloning import DemonstrationCloning
+    from armexp.agents.demonstrations import Demonstration
+    from armexp.agents.sac import ResumableSAC
+
+
+@dataclass
+class TrainingContext:
+    """What the aids of one training run share."""
+
+    model: ResumableSAC
+    settings: ReachSettings
+    seed: int
+    #: True when the run continues from a checkpoint (its replay buffer starts empty).
+    resumed: bool
+    #: The share of the training budget spent so far (0 to 1).
+    budget_used: Callable[[], float]
+    #: Training wall time so far (s).
+    wall: Callable[[], float]
+    #: Set by the demonstrations aid: how many planner episodes to plan.
+    demo_episodes: int = 0
+    #: Set by the cloning aid, for aids that add to what it clones.
+    cloning: DemonstrationCloning | None = None
+    _planned: list[Demonstration] | None = field(default=None, repr=False)
+
+    def demonstrations(self) -> list[Demonstration]:
+        """The planner's demonstrations, planned on first use (their time counts in the budget)
+        and logged as ``demonstrations/*``."""
+        if self._planned is None:
+            import mlflow
+
+            from armexp.agents.demonstrations import demonstrations
+            from armexp.envs.reach import ReachEnv
+
+            demos = demonstrations(ReachEnv(self.settings), self.demo_episodes, self.seed)
+            reached = sum(d.reason == "reached" for d in demos) / len(demos)
+            mlflow.log_metrics(
+                {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
+                 "demonstrations/steps": sum(map(len, demos)),
+                 "demonstrations/wall_s": self.wall()}
+            )  # fmt: skip
+            self._planned = demos
+        return self._planned
+
+
+class TrainingAid:
+    """One add-on to SAC's training (see the module doc)."""
+
+    #: Uses privileged knowledge (the planner, the obstacles): the run is aided.
+    privileged: ClassVar[bool] = False
+    #: Aids that must come before this one in ``agent.aids`` (by class).
+    needs: ClassVar[tuple[type[TrainingAid], ...]] = ()
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        """Before training: change the model or the context; the callbacks to run."""
+        return []
+
+    def finish(self, ctx: TrainingContext) -> dict[str, float]:
+        """After training, before the final model is saved; metrics to log."""
+        return {}
+
+
+def build_aids(specs: Mapping[str, Any]) -> list[TrainingAid]:
+    """The aids of ``agent.aids``, in order; a bad entry is one `ConfigError` sentence naming
+    its key."""
+    from hydra.utils import instantiate
+
+    aids: list[TrainingAid] = []
+    for name, spec in specs.items():
+        key = f"agent.aids.{name}"
+        try:
+            aid = instantiate(spec)
+        except Exception as exc:
+            cause = exc.__cause__ or exc
+            raise ConfigError(
+                f"{key} is not allowed: it could not be built ({cause}); give a _target_ that "
+                "names a training aid (armexp.agents.aids.TrainingAid) and its arguments."
+            ) from None
+        if not isinstance(aid, TrainingAid):
+            raise ConfigError(
+                f"{key}._target_={spec.get('_target_')} is not allowed: it is not a training aid "
+                "(armexp.agents.aids.TrainingAid)."
+            )
+        for need in aid.needs:
+            if not any(isinstance(a, need) for a in aids):
+                raise ConfigError(
+                    f"{key} is not allowed without a {need.__name__} aid listed before it in "
+                    "agent.aids."
+                )
+        aids.append(aid)
+    return aids
