@@ -15,16 +15,16 @@ import importlib
 import os
 import sys
 import tempfile
-import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
-# stage -> (module with `run(cfg)`, one-line help); module None = not built yet.
-STAGES: dict[str, tuple[str | None, str]] = {
+# stage -> (module with `run(cfg)`, one-line help).
+STAGES: dict[str, tuple[str, str]] = {
     "simulate": ("armexp.stages.simulate", "one closed-loop run of a controller, no agent"),
     "tune": ("armexp.stages.tune", "cuckoo search (Algorithm 2) of the controller gains"),
     "train": (
@@ -40,31 +40,14 @@ STAGES: dict[str, tuple[str | None, str]] = {
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
 }
 
-_VALUE_FLAGS = {
-    "--cfg",
-    "-c",
-    "--package",
-    "-p",
-    "--config-path",
-    "-cp",
-    "--config-name",
-    "-cn",
-    "--config-dir",
-    "-cd",
-    "--experimental-rerun",
-    "--info",
-    "-i",
-}
-_NO_VALIDATE = {
-    "--help",
-    "-h",
-    "--hydra-help",
-    "--info",
-    "-i",
-    "--shell-completion",
-    "-sc",
-    "--version",
-}
+# The Hydra flags whose meaning armexp acts on (long and short spellings, as `--hydra-help`
+# lists them); every other flag is passed to Hydra untouched.
+MULTIRUN_FLAGS = {"--multirun", "-m"}
+SHOW_CONFIG_FLAGS = {"--cfg", "-c"}
+CONFIG_DIR_FLAGS = {"--config-dir", "-cd"}
+# These print and exit without running a job, so the overrides are not checked first.
+INFO_FLAGS = {"--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc",
+              "--version"}  # fmt: skip
 
 
 def usage() -> str:
@@ -73,9 +56,7 @@ def usage() -> str:
         "",
         "Stages (each a Hydra app; `armexp <stage> --help` shows its config groups):",
     ]
-    for name, (module, text) in STAGES.items():
-        suffix = "" if module else "   [not built yet]"
-        lines.append(f"  {name:<9} {text}{suffix}")
+    lines += [f"  {name:<9} {text}" for name, (_, text) in STAGES.items()]
     lines += [
         "",
         "Examples:",
@@ -90,38 +71,74 @@ def usage() -> str:
     return "\n".join(lines)
 
 
-def split_args(args: Sequence[str]) -> tuple[list[str], list[str], bool, bool]:
-    """(flags with their values, overrides, multirun, validate) from Hydra's command line."""
-    flags: list[str] = []
-    overrides: list[str] = []
-    multirun = False
-    validate = True
-    takes_value = False
-    for a in args:
-        if takes_value:
-            flags.append(a)
-            takes_value = False
+@dataclass
+class CommandLine:
+    """A stage's arguments: Hydra's flags (with their values) and the config overrides."""
+
+    flags: list[str] = field(default_factory=list)
+    overrides: list[str] = field(default_factory=list)
+
+    def _named(self, names: set[str]) -> bool:
+        return any(f.partition("=")[0] in names for f in self.flags)
+
+    @property
+    def multirun(self) -> bool:
+        return self._named(MULTIRUN_FLAGS)
+
+    @property
+    def shows_config(self) -> bool:
+        return self._named(SHOW_CONFIG_FLAGS)
+
+    @property
+    def runs_no_job(self) -> bool:
+        return self._named(INFO_FLAGS)
+
+    def config_dirs(self) -> list[str]:
+        """The folders of ``--config-dir DIR`` / ``-cd=DIR``."""
+        dirs = []
+        for i, flag in enumerate(self.flags):
+            name, eq, value = flag.partition("=")
+            if name in CONFIG_DIR_FLAGS:
+                value = value if eq else (self.flags[i + 1] if i + 1 < len(self.flags) else "")
+                dirs.append(value)
+        return [d for d in dirs if d]
+
+
+def split_args(args: Sequence[str]) -> CommandLine:
+    """Flags and overrides as Hydra tells them apart: an argument starting with ``-`` is a flag;
+    one that Hydra's override grammar parses is an override; any other follows a flag as its
+    value (``--cfg job``, ``--config-dir DIR``). An argument that is none of these, or that has
+    an ``=`` and does not parse, is a malformed override, reported as one sentence
+    (`ConfigError`)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    from armexp.config.errors import translate_error
+
+    parser = OverridesParser.create()
+    line = CommandLine()
+    after_flag = False
+    for arg in args:
+        if arg.startswith("-"):
+            line.flags.append(arg)
+            after_flag = "=" not in arg
             continue
-        if a.startswith("-"):
-            flags.append(a)
-            multirun |= a in ("-m", "--multirun")
-            validate &= a not in _NO_VALIDATE
-            takes_value = a in _VALUE_FLAGS and "=" not in a
+        try:
+            parser.parse_overrides([arg])
+        except OverrideParseException as exc:
+            if not after_flag or "=" in arg:
+                raise translate_error(exc) from None
+            line.flags.append(arg)
         else:
-            overrides.append(a)
-    return flags, overrides, multirun, validate
+            line.overrides.append(arg)
+        after_flag = False
+    return line
 
 
-def _search_path(flags: Sequence[str]) -> list[str]:
-    """``--config-dir DIR`` / ``-cd DIR`` as the override the pre-run check composes with, so
-    the check sees the same config groups as the run."""
-    dirs = []
-    for i, flag in enumerate(flags):
-        name, eq, value = flag.partition("=")
-        if name in ("--config-dir", "-cd"):
-            value = value if eq else (flags[i + 1] if i + 1 < len(flags) else "")
-            if value:
-                dirs.append(f"file://{os.path.abspath(value)}")
+def _search_path(line: CommandLine) -> list[str]:
+    """``--config-dir`` as the override the pre-run check composes with, so the check sees the
+    same config groups as the run."""
+    dirs = [f"file://{os.path.abspath(d)}" for d in line.config_dirs()]
     return [f"hydra.searchpath=[{','.join(dirs)}]"] if dirs else []
 
 
@@ -152,31 +169,18 @@ def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     return overrides
 
 
-def sweep_combinations(overrides: Sequence[str]) -> list[list[str]]:
-    """Every job's overrides of a basic sweep: each is composed and checked before any runs
-    (tens of milliseconds a job, small beside the job itself)."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    parsed = OverridesParser.create().parse_overrides(list(overrides))
-    batches = BasicSweeper.split_arguments(parsed, max_batch_size=None)
-    return [list(job) for batch in batches for job in batch]
-
-
-def precheck(overrides: Sequence[str], multirun: bool) -> None:
+def precheck(overrides: Sequence[str], multirun: bool, search_path: Sequence[str] = ()) -> None:
+    """Compose and validate the run's config, or every job's of a sweep (tens of milliseconds
+    a job, small beside the job itself), before Hydra starts any."""
     from armexp.config import compose_config
 
     if not multirun:
-        _writable(compose_config(overrides))
+        _writable(compose_config([*search_path, *overrides]))
         return
-    sweepable = [o for o in overrides if not o.startswith("hydra")]
-    try:
-        jobs = sweep_combinations(sweepable)
-    except Exception:
-        # Non-basic sweeps (ranges for other sweepers, …): validate the fixed part only.
-        jobs = [[o for o in sweepable if "," not in o and "(" not in o]]
-    for job in jobs:
-        cfg = compose_config(job)
+    from armexp.sweeps import sweep_combinations
+
+    for job in sweep_combinations(overrides):
+        cfg = compose_config([*search_path, *job])
     _writable(cfg)
 
 
@@ -197,29 +201,21 @@ def _writable(cfg: Any) -> None:
 
 
 def run_stage(stage: str, args: Sequence[str]) -> int:
-    module_name, _ = STAGES[stage]
-    if module_name is None:
-        print(
-            f"armexp: the '{stage}' stage is not built yet; available now: "
-            + ", ".join(s for s, (m, _) in STAGES.items() if m),
-            file=sys.stderr,
-        )
-        return EXIT_USAGE
     from armexp.config import ConfigError, config_dir, normalize_overrides, register_schemas
 
-    flags, overrides, multirun, validate = split_args(args)
-    overrides = imply_gains_source(stage, overrides)
-    overrides = _without_credentials(overrides)
-    if validate:
-        try:
-            precheck([*_search_path(flags), *overrides], multirun)
-        except ConfigError as exc:
-            print(f"armexp {stage}: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-    module = importlib.import_module(module_name)
-    task: Callable[[Any], Any] = module.run
+    try:
+        line = split_args(args)
+        overrides = _without_credentials(imply_gains_source(stage, line.overrides))
+        if not line.runs_no_job:
+            precheck(overrides, line.multirun, _search_path(line))
+    except ConfigError as exc:
+        print(f"armexp {stage}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    task: Callable[[Any], Any] = importlib.import_module(STAGES[stage][0]).run
 
     import hydra
+
+    from armexp import sweeps
 
     def job(cfg: Any) -> Any:
         from armexp.config import validate as check
@@ -245,20 +241,20 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             raise SystemExit(1) from None
 
     register_schemas()
-    # Hydra's parser wants the overrides as one contiguous block after the flags.
+    runs_jobs = line.multirun and not line.runs_no_job and not line.shows_config
+    sweep = sweeps.open_sweep(stage, overrides, _search_path(line)) if runs_jobs else None
+    # `hydra.main` reads its command line from sys.argv only (it has no parameter for one), and
+    # its parser wants the overrides as one block after the flags. The sweep run's id goes
+    # through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
     sys.argv = [
         f"armexp {stage}",
-        *flags,
+        *line.flags,
         *normalize_overrides(overrides),
+        *([f"tracking.sweep_run={sweep[1]}"] if sweep is not None else []),
         f"hydra.job.name={stage}",
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     _terminate_as_interrupt()
-    runs_jobs = multirun and validate and not {"--cfg", "-c"} & set(flags)
-    sweep = _open_sweep(stage, overrides) if runs_jobs else None
-    if sweep is not None:
-        # Through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
-        sys.argv.insert(-1, f"tracking.sweep_run={sweep[1]}")
     status = "FAILED"
     beat = contextlib.nullcontext() if sweep is None else sweep[2]
     try:
@@ -270,11 +266,11 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         code = code if isinstance(code, int) else (0 if code is None else 1)
         status = "FINISHED" if code == 0 else "FAILED"
         return code
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         status = "KILLED"
-        from armexp import tracking
+        from armexp.tracking import RunInterrupted
 
-        started = tracking.last_run_id is not None or sweep is not None
+        started = isinstance(exc, RunInterrupted) or sweep is not None
         print(
             f"armexp {stage}: interrupted; "
             + ("the MLflow run is marked KILLED." if started else "no run was started."),
@@ -283,62 +279,8 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         return EXIT_INTERRUPTED
     finally:
         if sweep is not None:
-            _close_sweep(sweep, status)
+            sweeps.close_sweep(sweep, status)
     return 0
-
-
-def _open_sweep(stage: str, overrides: Sequence[str]) -> tuple[Any, str, Any]:
-    """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
-    reaches every job as ``tracking.sweep_run``."""
-    from mlflow.tracking import MlflowClient
-
-    from armexp import tracking
-    from armexp.config import compose_config
-
-    fixed = [o for o in overrides if "," not in o and "(" not in o and not o.startswith("hydra")]
-    cfg = compose_config(fixed)
-    experiment_id = tracking.setup(cfg)
-    client = MlflowClient(tracking.store_uri(cfg))
-    run = tracking.retry(
-        lambda: client.create_run(
-            experiment_id,
-            run_name=f"sweep-{stage}",
-            tags={
-                tracking.STAGE_TAG: "sweep",
-                "armexp.sweep_stage": stage,
-                tracking.HEARTBEAT_TAG: f"{time.time():.0f}",
-                tracking.PROCESS_TAG: tracking.process_identity(),
-            },
-        )
-    )
-    sweep_id = run.info.run_id
-    client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
-    print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
-    return client, sweep_id, tracking.Heartbeat(sweep_id, tracking.store_uri(cfg))
-
-
-def _close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
-    from armexp import tracking
-
-    client, sweep_id, _ = sweep
-    if status != "FINISHED":
-        # Jobs stopped with the sweep (a worker killed before it could end its run) would stay
-        # RUNNING: they end as the sweep did.
-        experiment_id = client.get_run(sweep_id).info.experiment_id
-        running = client.search_runs(
-            [experiment_id],
-            f"tags.`{tracking.SWEEP_TAG}` = '{sweep_id}' and attributes.status = 'RUNNING'",
-            max_results=1000,
-        )
-        for run in running:
-            run_id = str(run.info.run_id)
-
-            def stop(rid: str = run_id) -> None:
-                client.set_tag(rid, tracking.ERROR_TAG, "sweep stopped")
-                client.set_terminated(rid, "KILLED")
-
-            tracking.retry(stop)
-    tracking.retry(lambda: client.set_terminated(sweep_id, status))
 
 
 def _terminate_as_interrupt() -> None:

@@ -27,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -69,8 +70,6 @@ STAGE_INPUTS: dict[str, tuple[str, ...]] = {
              "eval.deterministic", "eval.initial_offset", "eval.convergence_window"),
 }  # fmt: skip
 _parents: list[str] = []
-#: The id of the stage run started last in this process (the pipeline reads its children's).
-last_run_id: str | None = None
 MAX_PARAM_LENGTH = 6000
 
 T = TypeVar("T")
@@ -315,6 +314,23 @@ def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
     return found
 
 
+@dataclass(frozen=True)
+class StageResult:
+    """What a stage's ``run(cfg)`` returns: the MLflow run it logged to and its summary (metrics,
+    or a pipeline's run ids by step)."""
+
+    run_id: str
+    summary: Mapping[str, Any] = field(default_factory=dict)
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM inside a stage run: the run ``run_id`` is marked KILLED."""
+
+    def __init__(self, run_id: str) -> None:
+        super().__init__(run_id)
+        self.run_id = run_id
+
+
 @contextmanager
 def stage_run(
     cfg: DictConfig,
@@ -360,18 +376,19 @@ def stage_run(
                 nested=bool(parent_run_id),
             )
         )
-    global last_run_id
-    last_run_id = run.info.run_id
     try:
         if not resume_run_id:
             log_batch(run.info.run_id, params=flatten(cfg))
             mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
         with Heartbeat(run.info.run_id, store_uri(cfg)):
             yield run
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         _note_error("interrupted")
         _end_run(run.info.run_id, "KILLED")
-        raise
+        if isinstance(exc, RunInterrupted):  # a nested stage's run, already named
+            raise
+        # Says to whoever catches it (the command line) that a run was started and is KILLED.
+        raise RunInterrupted(run.info.run_id) from None
     except BaseException as exc:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             _end_run(run.info.run_id, "FINISHED")

@@ -111,6 +111,16 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["tuner.n_iterations=0"], ["tuner.n_iterations=0", "≥ 1"]),
         (["controller.gains=nonexistent"], ["controller.gains=nonexistent", "one of: paper"]),
         (["+controller.gains.zz=1"], ["controller.gains.zz is not a config key", "a0, a1"]),
+        # From the fields of Hydra's and OmegaConf's exceptions: the schema's declared type.
+        (["robot.lengths=[a,b]"], ["robot.lengths[0]=a", "a number"]),
+        (["robot.lengths=3"], ["robot.lengths=3", "a list"]),
+        (["robot.lengths.5=1"], ["robot.lengths.5=1", "no entry [5]"]),
+        (["agent.max_env_steps=abc"], ["agent.max_env_steps=abc", "an integer, or null"]),
+        (["train.keep_best=maybe"], ["train.keep_best=maybe", "true or false"]),
+        (["robot.uncertainty=5"], ["robot.uncertainty=5", "a group of settings"]),
+        (["hydra/launcher=nope"], ["hydra/launcher=nope", "basic, joblib"]),
+        (["robot.lengths=[1,"], ["robot.lengths=[1, is not a valid override"]),
+        (["seed=range(3)"], ["seed=range(3) is a sweep", "-m"]),
         (["tasks.targets.0.x=3.0"], ["tasks.targets[0]", "outside the arm's reach"]),
         (["tasks.targets.0.x=0.5", "tasks.targets.0.y=1.3"], ["inside obstacles.circles[0]"]),
         (

@@ -19,11 +19,13 @@ from typing import Any
 from hydra import compose, initialize_config_dir
 from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
-from hydra.errors import HydraException, MissingConfigException
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from armexp.config.checks import Check, ConfigError, fail
+from armexp.config.errors import translate_error
 from armexp.config.schema import SCHEMAS, ArmexpConfig
 
 __all__ = ["ConfigError", "compose_config", "config_dir", "register_schemas", "validate"]
@@ -60,8 +62,16 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
     """Compose the root config with Hydra's compose API, translating errors to `ConfigError`."""
     overrides = normalize_overrides(overrides)
     try:
+        for override in OverridesParser.create().parse_overrides(overrides):
+            if override.is_sweep_override():
+                raise ConfigError(
+                    f"{override.input_line} is a sweep, which runs one job per value: add -m "
+                    "(--multirun) to sweep, or write a list in brackets."
+                )
         with _hydra_context():
             cfg = compose(config_name="config", overrides=list(overrides))
+    except ConfigError:
+        raise
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
         raise translate_error(exc, overrides) from None
     validate(cfg)
@@ -90,73 +100,6 @@ def normalize_overrides(overrides: Sequence[str]) -> list[str]:
 def group_options(group: str) -> list[str]:
     folder = config_dir() / group
     return sorted(p.stem for p in folder.glob("*.yaml"))
-
-
-_MISSING_OPTION = re.compile(r"Could not (?:find|load) '([\w/]+)/([^'/]+)'")
-_FULL_KEY = re.compile(r"full_key:\s*(\S+)")
-_NOT_IN_STRUCT = re.compile(r"Key '([^']+)' (?:is )?not in (?:struct|'[^']+')")
-_COULD_NOT_OVERRIDE = re.compile(r"Could not override '([^']+)'")
-_VALUE = re.compile(r"Value '([^']*)'")
-_TYPE = re.compile(r"could not be converted to (\w+)")
-
-
-def translate_error(exc: BaseException, overrides: Sequence[str] = ()) -> ConfigError:
-    """One sentence for a Hydra/OmegaConf composition error."""
-    msg = str(exc)
-    if exc.__cause__ is not None:
-        msg += "\n" + str(exc.__cause__)
-    m = _MISSING_OPTION.search(msg)
-    if (isinstance(exc, MissingConfigException) or m) and m:
-        group, option = m.group(1), m.group(2)
-        options = group_options(group)
-        if options:
-            return ConfigError(
-                f"{group.replace('/', '.')}={option} is not a known option; choose one of: "
-                f"{', '.join(options)}."
-            )
-    key_m = _FULL_KEY.search(msg) or _COULD_NOT_OVERRIDE.search(msg)
-    key = key_m.group(1) if key_m else None
-    value = _override_value(key, overrides) if key else None
-    if "is not a subclass of" in msg and key:
-        return ConfigError(
-            f"{key}={value} does not fit here: it must be a group of settings "
-            f"(see `armexp <stage> --cfg job`)."
-        )
-    type_m = _TYPE.search(msg)
-    if type_m and key:
-        value_m = _VALUE.search(msg)
-        shown = value if value is not None else (value_m.group(1) if value_m else "?")
-        kind = {"float": "a number", "integer": "an integer", "bool": "true or false"}.get(
-            type_m.group(1).lower(), "of another type"
-        )
-        return ConfigError(f"{key}={shown} is not allowed: it must be {kind}.")
-    nis = _NOT_IN_STRUCT.search(msg)
-    if nis and key:
-        return ConfigError(
-            f"{key} is not a config key armexp knows here (from '{_find_override(key, overrides)}')"
-            "; see `armexp <stage> --cfg job` for the valid keys."
-        )
-    if "Ambiguous value" in msg or "multirun" in msg.lower():
-        return ConfigError(
-            "a sweep (a=1,2 or range(...)) was given without -m; add -m (--multirun) to sweep."
-        )
-    first = msg.strip().splitlines()[0] if msg.strip() else type(exc).__name__
-    return ConfigError(f"the configuration could not be composed: {first.rstrip('.')}.")
-
-
-def _override_value(key: str, overrides: Sequence[str]) -> str | None:
-    for o in overrides:
-        k, _, v = o.lstrip("+~").partition("=")
-        if k == key:
-            return v
-    return None
-
-
-def _find_override(key: str, overrides: Sequence[str]) -> str:
-    for o in overrides:
-        if o.lstrip("+~").partition("=")[0] == key:
-            return o
-    return key
 
 
 # ---------------------------------------------------------------------------------- validation

@@ -95,7 +95,7 @@ def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]
     return out
 
 
-def run(cfg: DictConfig) -> dict[str, float]:
+def run(cfg: DictConfig) -> tracking.StageResult:
     train_run = _train_run(cfg)
     train_id = train_run.info.run_id
     print(f"eval: policy of train run {train_id}")
@@ -193,7 +193,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
         tracking.log_dataframe(frame, "episodes.csv")
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
         _print_table(active.info.run_id, frame)
-        return summary
+        return tracking.StageResult(active.info.run_id, summary)
 
 
 def _offset_run(

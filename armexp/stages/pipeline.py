@@ -14,7 +14,6 @@ from __future__ import annotations
 import copy
 import logging
 from collections.abc import Callable
-from typing import Any
 
 import mlflow
 from mlflow.tracking import MlflowClient
@@ -99,8 +98,9 @@ def _resumable(cfg: DictConfig) -> str | None:
     return None
 
 
-def run(cfg: DictConfig) -> dict[str, str]:
-    """One pipeline, or with ``pipeline.seeds`` a study of one pipeline per seed."""
+def run(cfg: DictConfig) -> tracking.StageResult:
+    """One pipeline, or with ``pipeline.seeds`` a study of one pipeline per seed: the parent run,
+    with the stage runs' ids by step as its summary."""
     if cfg.pipeline.seeds:
         from armexp.stages import study
 
@@ -113,9 +113,9 @@ def run_one(
     run_name: str | None = None,
     paper_gains_row: bool = False,
     report_: bool = True,
-) -> dict[str, str]:
+) -> tracking.StageResult:
     """tune → tune_pid → train → eval (→ eval_paper: the adaptive controller with the paper's
-    gains) (→ report) under one parent run; the ids of the stage runs by step."""
+    gains) (→ report) under one parent run; its id, and the ids of the stage runs by step."""
     from armexp.stages import evaluate, report, train, tune
 
     pid_cfg = _with_seed(_pid_config(cfg), int(cfg.seed))
@@ -124,7 +124,12 @@ def run_one(
     with tracking.stage_run(cfg, "pipeline", run_name=name) as parent:
         parent_id = parent.info.run_id
 
-        def step(name: str, stage: str, stage_cfg: DictConfig, fn: Callable[[Any], Any]) -> str:
+        def step(
+            name: str,
+            stage: str,
+            stage_cfg: DictConfig,
+            fn: Callable[[DictConfig], tracking.StageResult],
+        ) -> str:
             if cfg.pipeline.reuse:
                 found = _reusable(stage_cfg, stage)
                 if found:
@@ -135,7 +140,7 @@ def run_one(
             print(f"pipeline: {name} ...")
             try:
                 with tracking.parent(parent_id):
-                    fn(stage_cfg)
+                    result = fn(stage_cfg)
             except BaseException as exc:
                 mlflow.set_tag(FAILED_STAGE_TAG, name)
                 if isinstance(exc, ConfigError):
@@ -143,8 +148,7 @@ def run_one(
                 if not isinstance(exc, KeyboardInterrupt | SystemExit):
                     print(f"pipeline: {name} failed: {type(exc).__name__}: {exc}")
                 raise
-            assert tracking.last_run_id is not None
-            ids[name] = tracking.last_run_id
+            ids[name] = result.run_id
             mlflow.set_tag(f"armexp.run.{name}", ids[name])
             return ids[name]
 
@@ -181,4 +185,4 @@ def run_one(
             + " | ".join(f"{k} {v[:8]}" for k, v in ids.items())
             + (f" | report: {report.out_dir(cfg) / 'index.html'}" if report_ else "")
         )
-    return ids
+    return tracking.StageResult(parent_id, ids)

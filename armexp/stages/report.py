@@ -49,7 +49,7 @@ def out_dir(cfg: DictConfig) -> Path:
     return Path(folder).resolve()
 
 
-def run(cfg: DictConfig) -> dict[str, float]:
+def run(cfg: DictConfig) -> tracking.StageResult:
     uri = tracking.store_uri(cfg)
     client = MlflowClient(uri)
     selection = select(
@@ -86,7 +86,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"report: run {active.info.run_id} | {len(selection.evals)} eval run(s) "
             f"({selection.how}) | open {folder / 'index.html'}"
         )
-    return summary
+    return tracking.StageResult(active.info.run_id, summary)
 
 
 def _check_out_dir(folder: Path) -> None:

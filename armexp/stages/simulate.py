@@ -23,7 +23,7 @@ from armexp.sim.metrics import tracking_metrics
 log = logging.getLogger(__name__)
 
 
-def run(cfg: DictConfig) -> dict[str, float]:
+def run(cfg: DictConfig) -> tracking.StageResult:
     with tracking.stage_run(cfg, "simulate", run_name=cfg.simulate.run_name) as active:
         plant = build_plant(cfg)
         scenario = build_scenario(cfg)
@@ -69,4 +69,4 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"simulate: run {active.info.run_id} | rms |e1| {metrics['rms_e1']:.3g} rad | "
             f"converged in {metrics['convergence_time']:.3g} s | diverged: {sim.diverged}"
         )
-        return metrics
+        return tracking.StageResult(active.info.run_id, metrics)

@@ -26,7 +26,7 @@ STUDY_TAG = "armexp.study"
 FAILED_SEEDS_TAG = "armexp.failed_seeds"
 
 
-def run(cfg: DictConfig) -> dict[str, str]:
+def run(cfg: DictConfig) -> tracking.StageResult:
     from armexp.stages import pipeline, report
 
     seeds = [int(s) for s in cfg.pipeline.seeds]
@@ -49,7 +49,7 @@ def run(cfg: DictConfig) -> dict[str, str]:
             print(f"study: seed {seed} ({seeds.index(seed) + 1} of {len(seeds)})")
             try:
                 with tracking.parent(parent_id):
-                    steps = pipeline.run_one(
+                    seed_run = pipeline.run_one(
                         seed_cfg,
                         run_name=f"seed {seed}",
                         paper_gains_row=bool(cfg.pipeline.paper_gains_row),
@@ -62,6 +62,7 @@ def run(cfg: DictConfig) -> dict[str, str]:
                 print(f"study: seed {seed} failed ({failed[seed]}); going on")
                 mlflow.set_tag(FAILED_SEEDS_TAG, ",".join(map(str, sorted(failed))))
                 continue
+            steps = seed_run.summary
             for step, run_id in steps.items():
                 ids[f"{step}.{seed}"] = run_id
             evals += [steps[s] for s in ("eval", "eval_paper") if s in steps]
@@ -72,9 +73,7 @@ def run(cfg: DictConfig) -> dict[str, str]:
             cfg.report.eval_runs = evals
             cfg.report.seeds = seeds
         with tracking.parent(parent_id):
-            report.run(cfg)
-        assert tracking.last_run_id is not None
-        ids["report"] = tracking.last_run_id
+            ids["report"] = report.run(cfg).run_id
         mlflow.set_tag("armexp.run.report", ids["report"])
         summary: dict[str, Any] = {"runs": ids, "failed_seeds": failed}
         mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(summary)), "runs.yaml")
@@ -83,4 +82,4 @@ def run(cfg: DictConfig) -> dict[str, str]:
             + (f" (failed: {', '.join(map(str, sorted(failed)))})" if failed else "")
             + f" | report: {report.out_dir(cfg) / 'index.html'}"
         )
-    return ids
+    return tracking.StageResult(parent_id, ids)

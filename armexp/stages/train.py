@@ -91,7 +91,7 @@ def step_budget(cfg: DictConfig) -> int:
     return bound if cap is None else min(bound, int(cap))
 
 
-def run(cfg: DictConfig) -> dict[str, float]:
+def run(cfg: DictConfig) -> tracking.StageResult:
     if cfg.train.resume:
         return resume(cfg)
     build_aids(cfg.agent.aids)  # a bad aid stops here, before a run exists
@@ -99,10 +99,11 @@ def run(cfg: DictConfig) -> dict[str, float]:
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
     with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
-        return _learn(cfg, gains, active.info.run_id, model_path=None, state={})
+        summary = _learn(cfg, gains, active.info.run_id, model_path=None, state={})
+        return tracking.StageResult(active.info.run_id, summary)
 
 
-def resume(cfg: DictConfig, check_overrides: bool = True) -> dict[str, float]:
+def resume(cfg: DictConfig, check_overrides: bool = True) -> tracking.StageResult:
     """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run
     (``check_overrides=False``: the caller knows ``cfg`` matches the run's inputs, e.g. the
     pipeline with ``pipeline.reuse``)."""
@@ -142,7 +143,8 @@ def resume(cfg: DictConfig, check_overrides: bool = True) -> dict[str, float]:
         if tracking.ERROR_TAG in found.data.tags:
             # The interruption that stopped it is over: the run ends with its own new status.
             tracking.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, tracking.ERROR_TAG))
-        return _learn(original, gains, run_id, model_path=str(model_path), state=state)
+        summary = _learn(original, gains, run_id, model_path=str(model_path), state=state)
+        return tracking.StageResult(run_id, summary)
 
 
 #: Keys a resume may change: where it logs, how it shows progress, and the budget to extend.

@@ -108,7 +108,7 @@ def _convergence_figure(result: CuckooResult, reference: dict[str, float]) -> An
     return fig
 
 
-def run(cfg: DictConfig) -> dict[str, float]:
+def run(cfg: DictConfig) -> tracking.StageResult:
     names, lower, upper = search_box(cfg)
     with tracking.stage_run(cfg, "tune", run_name=cfg.tune.run_name) as active:
         objective = build_objective(cfg)
@@ -216,4 +216,5 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"{100 * metrics['best_time_at_limit']:.2g} % of the time"
             + (f" | on a bound: {', '.join(bound_hits)}" if bound_hits else "")
         )
-        return {"best_objective": float(result.best_f), **metrics, **reference}
+        summary = {"best_objective": float(result.best_f), **metrics, **reference}
+        return tracking.StageResult(active.info.run_id, summary)

@@ -1,0 +1,104 @@
+"""A multirun's jobs listed before any runs, and the MLflow run that groups them.
+
+`sweep_combinations` expands a sweep with Hydra's public override parser (``Override`` and its
+``sweep_string_iterator``) the way Hydra's basic sweeper does, so every job's config can be
+composed and checked before the first job starts.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override
+from hydra.errors import HydraException
+
+
+def _ours(overrides: Sequence[str]) -> list[Override]:
+    """The parsed overrides of armexp's config: Hydra's own (``hydra/launcher=…``,
+    ``hydra.sweeper.…``) configure Hydra, which checks them when it starts."""
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    return [o for o in parsed if not o.is_hydra_override()]
+
+
+def sweep_combinations(overrides: Sequence[str]) -> list[list[str]]:
+    """Every job's overrides of a sweep, as Hydra's basic sweeper forms them: the cartesian
+    product of each override's values (``a=1,2``, ``choice(…)``, ``range(…)``). Sweeps that
+    cannot be listed here (an interval for an optimising sweeper, a glob over a config group)
+    are left to the sweeper, which checks them when it runs. Hydra's own overrides are left out
+    (see `_ours`)."""
+    axes: list[list[str]] = []
+    for override in _ours(overrides):
+        if not override.is_sweep_override():
+            axes.append([str(override.input_line)])
+            continue
+        key = override.get_key_element()
+        try:
+            axes.append([f"{key}={value}" for value in override.sweep_string_iterator()])
+        except HydraException:
+            continue
+    return [list(job) for job in itertools.product(*axes)]
+
+
+def fixed_overrides(overrides: Sequence[str]) -> list[str]:
+    """The overrides every job of a sweep shares."""
+    return [str(o.input_line) for o in _ours(overrides) if not o.is_sweep_override()]
+
+
+def open_sweep(
+    stage: str, overrides: Sequence[str], search_path: Sequence[str] = ()
+) -> tuple[Any, str, Any]:
+    """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
+    reaches every job as ``tracking.sweep_run``. (MLflow is imported here, not before: the
+    checks before a sweep do not need it.)"""
+    from mlflow.tracking import MlflowClient
+
+    from armexp import tracking
+    from armexp.config import compose_config
+
+    cfg = compose_config([*search_path, *fixed_overrides(overrides)])
+    experiment_id = tracking.setup(cfg)
+    client = MlflowClient(tracking.store_uri(cfg))
+    run = tracking.retry(
+        lambda: client.create_run(
+            experiment_id,
+            run_name=f"sweep-{stage}",
+            tags={
+                tracking.STAGE_TAG: "sweep",
+                "armexp.sweep_stage": stage,
+                tracking.HEARTBEAT_TAG: f"{time.time():.0f}",
+                tracking.PROCESS_TAG: tracking.process_identity(),
+            },
+        )
+    )
+    sweep_id = run.info.run_id
+    client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
+    print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
+    return client, sweep_id, tracking.Heartbeat(sweep_id, tracking.store_uri(cfg))
+
+
+def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
+    from armexp import tracking
+
+    client, sweep_id, _ = sweep
+    if status != "FINISHED":
+        # Jobs stopped with the sweep (a worker killed before it could end its run) would stay
+        # RUNNING: they end as the sweep did.
+        experiment_id = client.get_run(sweep_id).info.experiment_id
+        running = client.search_runs(
+            [experiment_id],
+            f"tags.`{tracking.SWEEP_TAG}` = '{sweep_id}' and attributes.status = 'RUNNING'",
+            max_results=1000,
+        )
+        for run in running:
+            run_id = str(run.info.run_id)
+
+            def stop(rid: str = run_id) -> None:
+                client.set_tag(rid, tracking.ERROR_TAG, "sweep stopped")
+                client.set_terminated(rid, "KILLED")
+
+            tracking.retry(stop)
+    tracking.retry(lambda: client.set_terminated(sweep_id, status))
