@@ -1,7 +1,7 @@
 """armexp: run, sweep, compare and report DRL motion planning on robust low-level control.
 
 Reproduces Heydari Shahna et al., "Integrating DeepRL with Robust Low-Level Control in Robotic
-Manipulators for Non-Repetitive Reaching Tasks" (ICMA 2024). See README.md and DESIGN.md.
+Manipulators for Non-Repetitive Reaching Tasks" (ICMA 2024). See README.md and docs/design.md.
 """
 
 __version__ = "0.1.0"

@@ -1,6 +1,6 @@
 """The MLflow backbone: store location, one run per stage, artifacts, and run look-up.
 
-Stages hand data to each other only through MLflow (DESIGN §1). Every stage run carries:
+Stages hand data to each other only through MLflow (docs/design.md §1). Every stage run carries:
 
 * params: the flattened resolved config (``robot.lengths`` → ``[1.0, 0.8]``),
 * artifact ``config.yaml``: the full resolved config,

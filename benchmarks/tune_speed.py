@@ -6,7 +6,7 @@ Prints, measured in the same run:
 
 * the paper budget (15 nests, 200 iterations ≈ 6000 candidate evaluations, each a closed-loop
   simulation of the default objective's scenarios) through the batched compiled core, all cores,
-  with the constraints of DESIGN §5 on (the default);
+  with the constraints of docs/design.md §5 on (the default);
 * the cost of the constraints: the time spent in the stability check during that run, and the
   same budget with the constraints off (``gain_margin=null``, no effort terms) — unstable
   candidates are not simulated, so the constrained search can be the faster one;

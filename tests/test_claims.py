@@ -1,4 +1,4 @@
-"""The claim check (DESIGN §9) on episode tables with known outcomes."""
+"""The claim check (docs/design.md §9) on episode tables with known outcomes."""
 
 from __future__ import annotations
 

@@ -99,7 +99,7 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["train.gains=best"], ["train.gains='best'", "tuned, config"]),
         (["agent.n_envs=0"], ["agent.n_envs=0", "≥ 1"]),
         (["+agent.aids.x=3"], ["agent.aids.x=3", "_target_"]),
-        # Issue 18's probes: each used to run and fail with a traceback or go through silently.
+        # Values of the right type that make no sense: one sentence, not a traceback.
         (["agent.device=foo"], ["agent.device='foo'", "cpu, auto, mps, cuda"]),
         (["agent.ent_coef=abc"], ["agent.ent_coef='abc'", "'auto'"]),
         (["train.torch_threads=-2"], ["train.torch_threads=-2", "≥ 1, or null"]),
@@ -116,7 +116,7 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["robot.lengths=3"], ["robot.lengths=3", "a list"]),
         (["robot.lengths.5=1"], ["robot.lengths.5=1", "no entry [5]"]),
         (["agent.max_env_steps=abc"], ["agent.max_env_steps=abc", "an integer, or null"]),
-        (["train.keep_best=maybe"], ["train.keep_best=maybe", "true or false"]),
+        (["train.progress=maybe"], ["train.progress=maybe", "true or false"]),
         (["robot.uncertainty=5"], ["robot.uncertainty=5", "a group of settings"]),
         (["hydra/launcher=nope"], ["hydra/launcher=nope", "basic, joblib"]),
         (["robot.lengths=[1,"], ["robot.lengths=[1, is not a valid override"]),

@@ -199,7 +199,7 @@ def test_callback_sees_every_iteration_in_order() -> None:
     assert res.evaluations.flags.writeable
 
 
-# ----------------------------------------------------------------- abandonment rules (DESIGN §5)
+# ------------------------------------------------------ abandonment rules (docs/design.md §5)
 RULES = ("worst", "per_component")
 
 

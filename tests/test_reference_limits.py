@@ -1,4 +1,5 @@
-"""The reference generator (ramp | hold), actuator limits and the PID's anti-windup (DESIGN §4)."""
+"""The reference generator (ramp | hold), actuator limits and the PID's anti-windup
+(docs/design.md §4)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The sampled-loop stability constraint of the tuner (DESIGN §5) against the compiled loop."""
+"""The sampled-loop stability constraint of the tuner (docs/design.md §5) against the compiled
+loop."""
 
 from __future__ import annotations
 

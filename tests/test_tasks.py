@@ -1,4 +1,4 @@
-"""tasks=paper_four: the four targets placed as the paper describes its tasks (DESIGN §6).
+"""tasks=paper_four: the four targets placed as the paper describes its tasks (docs/design.md §6).
 
 Seen from the initial tip, (d) is the second farthest target yet in clear sight and reached
 soonest; (a), (b) and (c) lie behind obstacles; the least travel times are ordered like the

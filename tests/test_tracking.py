@@ -116,7 +116,7 @@ def test_latest_matching_tune_run_is_found(compose: Callable[..., DictConfig]) -
 
 def test_four_processes_racing_on_a_fresh_store_all_finish(tmp_path: Path) -> None:
     """MLflow creates a new SQLite store's schema on first open; processes doing it at once
-    used to fail inside the migration and could leave the store half-migrated."""
+    must not fail inside the migration nor leave the store half-migrated."""
     import subprocess
     import sys
 

@@ -10,7 +10,7 @@ they apply, as ``callbacks:`` lists do in lightning-hydra-template::
 Each aid gets the model and the environment's settings before training (`TrainingAid.setup`,
 which may return SB3 callbacks) and may change the model after it (`TrainingAid.finish`,
 which returns ``final/*`` metrics). Aids that use the planner's or the obstacles' knowledge
-make a run *aided* (DESIGN §7); the report says so for every table built from one.
+make a run *aided* (docs/design.md §7); the report says so for every table built from one.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Running a trained policy on one episode and measuring it (DESIGN §8, Table III)."""
+"""Running a trained policy on one episode and measuring it (docs/design.md §8, Table III)."""
 
 from __future__ import annotations
 
@@ -79,9 +79,9 @@ def episode_metrics(episode: Episode, n: int, lengths: Array, threshold: float) 
 
 
 def settling_time(episode: Episode, n: int, window: float, nominal: Episode | None = None) -> float:
-    """Convergence from a defined perturbation (DESIGN §8), on a run started with the reference
-    offset from the arm: the earliest time after which the perturbation's effect on the tracking
-    error stays within 2 % of where it started, until ``window`` s.
+    """Convergence from a defined perturbation (docs/design.md §8), on a run started with the
+    reference offset from the arm: the earliest time after which the perturbation's effect on the
+    tracking error stays within 2 % of where it started, until ``window`` s.
 
     The effect is e1 of this run minus e1 of the same episode without the offset (``nominal``:
     same policy, target and disturbance draws), so the controller's steady tracking error, which

@@ -129,7 +129,7 @@ class ScenarioConfig:
 # ------------------------------------------------------------------------------------ tuner
 @dataclass
 class ObjectiveConfig:
-    """The CSO objective (DESIGN §5): Gaing's W over seeded reference scenarios."""
+    """The CSO objective (docs/design.md §5): Gaing's W over seeded reference scenarios."""
 
     n_scenarios: int = checked(8, at_least(1))
     horizon: float = checked(0.6, _pos)
@@ -163,7 +163,7 @@ class TunerConfig:
     pa: float = checked(0.25, between(0.0, 1.0))
     beta: float = checked(1.5, between(0.0, 2.0, lo_open=True))
     step_scale: float = checked(0.01, _pos)
-    #: Abandonment rule (DESIGN §5): "worst" discards the P_a share of the worst nests
+    #: Abandonment rule (docs/design.md §5): "worst" discards the P_a share of the worst nests
     #: (Algorithm 2 line 9); "per_component" rebuilds each component with probability P_a.
     abandon: str = checked("per_component", one_of("worst", "per_component"))
     seed: int = checked(0, at_least(0))

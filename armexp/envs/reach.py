@@ -141,7 +141,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     (`armexp.envs.workspace`), or fixed with ``reset(options={"target": (x, y)})`` or
     ``reset(options={"task": "a"})`` for the tasks of ``tasks=paper_four``.
     ``reset(options={"reference_offset": [δ1, …, δn]})`` starts the reference at q_d(0) = q0 + δ
-    instead of q0 (a defined perturbation for measuring convergence, DESIGN §8).
+    instead of q0 (a defined perturbation for measuring convergence, docs/design.md §8).
 
     ## Episode End
     Terminated on reach, collision, joint limit or divergence; truncated after ``max_steps``

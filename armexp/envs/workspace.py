@@ -1,4 +1,5 @@
-"""The precomputed collision-free reachable workspace that targets are drawn from (DESIGN §6).
+"""The precomputed collision-free reachable workspace that targets are drawn from
+(docs/design.md §6).
 
 Joint space inside the limits is gridded so that one grid move per joint is exactly what the
 velocity bound allows in one time cell (h_j = q̇_j,max · Δt). A breadth-first search from the

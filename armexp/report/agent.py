@@ -1,7 +1,7 @@
 """Which agent produced a result: its preset, its learning aids and the budget it spent.
 
-The paper's agent is model-free SAC that learns from interaction alone (DESIGN §7). A preset that
-adds a learning aid using privileged knowledge of the planner or the obstacles (demonstrations,
+The paper's agent is model-free SAC that learns from interaction alone (docs/design.md §7). A preset
+that adds a learning aid using privileged knowledge of the planner or the obstacles (demonstrations,
 cloning, an expert's labels) is *aided*, and every table built from it says so. Aids that use no
 such knowledge (weight averaging, …) are named too, but do not make a run aided.
 

@@ -1,4 +1,4 @@
-"""The claim check of DESIGN §9: the paper's claims against PID, with robust statistics.
+"""The claim check of docs/design.md §9: the paper's claims against PID, with robust statistics.
 
 The paper claims about 10 % faster convergence and 18 % better accuracy than a PID. For each
 claim the episodes both controllers ran and reached in every selected eval run form a score

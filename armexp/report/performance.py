@@ -5,7 +5,7 @@ interquartile mean over the runs with its 95 % percentile bootstrap CI (`armexp.
 `N_BOOT` resamples, fixed so a report is reproducible): in Table III the runs of one task are
 resampled; in the comparison the runs are resampled within each task (the tasks are the strata).
 With one run the cell is that run's value. A ratio against a zero, an unreached task or a
-non-finite value is shown as "–" (DESIGN §9).
+non-finite value is shown as "–" (docs/design.md §9).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 R. Agarwal, M. Schwarzer, P. S. Castro, A. Courville, M. G. Bellemare, "Deep Reinforcement
 Learning at the Edge of the Statistical Precipice", NeurIPS 2021 (the `rliable` library). This is
-a small numpy/scipy re-implementation (DESIGN §9; `rliable` is archived and pins old
+a small numpy/scipy re-implementation (docs/design.md §9; `rliable` is archived and pins old
 dependencies):
 
 * :func:`iqm`: interquartile mean (mean of the middle 50 % of the pooled scores),
@@ -11,7 +11,7 @@ dependencies):
 * :func:`probability_of_improvement` (+ ``_ci``): P(X > Y) from the Mann–Whitney U statistic,
   averaged over tasks,
 * :func:`performance_profile` (+ ``_ci``): fraction of runs scoring above each threshold,
-* :func:`relative_improvement_ci` and :func:`verdict`: the claim check of DESIGN §9.
+* :func:`relative_improvement_ci` and :func:`verdict`: the claim check of docs/design.md §9.
 
 Score matrices have one row per run (seed, or seed × episode) and one column per task; a 1-D
 array is read as a single task column.
@@ -270,7 +270,7 @@ def relative_improvement_ci(
 
     The CI is a stratified bootstrap resampling both methods' runs independently per task. The
     point is nan when the baseline IQM is 0 or non-finite, and the bounds are nan when that happens
-    in any replicate (DESIGN §9: such a ratio is shown as "–").
+    in any replicate (docs/design.md §9: such a ratio is shown as "–").
     """
     p, lo, hi = _bootstrap(
         [_matrix(proposed), _matrix(baseline)],
@@ -283,9 +283,9 @@ def relative_improvement_ci(
 
 
 def verdict(low: float, high: float, claimed: float) -> str:
-    """One-word claim check (DESIGN §9) of an improvement CI ``[low, high]`` against the claimed
-    improvement size ``claimed`` (≥ 0, same sign convention: positive means the proposed method is
-    better):
+    """One-word claim check (docs/design.md §9) of an improvement CI ``[low, high]`` against the
+    claimed improvement size ``claimed`` (≥ 0, same sign convention: positive means the proposed
+    method is better):
 
     * ``"confirmed"``: the CI lies entirely at or above ``claimed`` (and above 0),
     * ``"direction only"``: the CI lies entirely above 0 but not entirely at or above ``claimed``,

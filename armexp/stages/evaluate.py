@@ -1,5 +1,5 @@
 """`armexp eval`: a trained policy on tasks (a)–(d) and held-out random targets, with the tuned
-adaptive controller and with the tuned PID baseline in the loop (DESIGN §8, Table III).
+adaptive controller and with the tuned PID baseline in the loop (docs/design.md §8, Table III).
 
 The policy, the environment (robot, obstacles, env settings) and the adaptive gains are those of
 the train run (``eval.train_run`` or the latest FINISHED one for the configured robot and
@@ -13,11 +13,11 @@ trajectory of each paper task per controller as ``trajectories/<controller>/<tas
 (the simulate stage's columns plus ``target_error``; random targets too with
 ``eval.random_trajectories=true``).
 
-Convergence (DESIGN §8): each paper task is run a second time for ``eval.convergence_window``
-seconds with the reference started ``eval.initial_offset`` rad from the arm on every joint.
-``<controller>.<task>.convergence_time`` is the 2 % settling time of the offset's effect on e1
-(this run's e1 minus the unperturbed episode's), ``e1_settling_time`` that of ‖e1‖ itself, which
-never settles when the steady tracking error exceeds 2 % of the offset
+Convergence (docs/design.md §8): each paper task is run a second time for
+``eval.convergence_window`` seconds with the reference started ``eval.initial_offset`` rad from the
+arm on every joint. ``<controller>.<task>.convergence_time`` is the 2 % settling time of the
+offset's effect on e1 (this run's e1 minus the unperturbed episode's), ``e1_settling_time`` that of
+‖e1‖ itself, which never settles when the steady tracking error exceeds 2 % of the offset
 (`armexp.agents.rollout.settling_time`); the run's trajectory is
 ``trajectories/<controller>/<task>_offset.parquet``.
 """

@@ -1,4 +1,4 @@
-"""Gain tuning: cuckoo search (Algorithm 2) and the controller objective (DESIGN §5)."""
+"""Gain tuning: cuckoo search (Algorithm 2) and the controller objective (docs/design.md §5)."""
 
 from armexp.tune.cuckoo import CuckooResult, cuckoo_search
 

@@ -28,7 +28,7 @@ objective and keeps a proposal only where it is strictly better than the nest it
      and kept only where strictly better (greedy), as in phase 1. (Yang's published MATLAB
      code, and NiaPy after it, tests ``rand > pa``, i.e. rebuilds a component with
      probability ``1 - pa``, with one ``r`` for all nests; the rate here is ``pa``, as the
-     text of the paper and DESIGN §5 have it.)
+     text of the paper and docs/design.md §5 have it.)
    * ``"worst"`` (Algorithm 2 line 9, "discard P_a of the worst nests"): the
      ``m = floor(pa * n_nests + 1/2)`` worst nests (at most ``n_nests - 1``: the best nest is
      never abandoned) are discarded and replaced, unconditionally, by new nests built with the
@@ -55,7 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["ABANDON_RULES", "CuckooResult", "cuckoo_search", "n_abandoned"]
 
-#: The abandonment rules of phase 2 (DESIGN §5).
+#: The abandonment rules of phase 2 (docs/design.md §5).
 ABANDON_RULES = ("worst", "per_component")
 
 FloatArray = NDArray[np.float64]

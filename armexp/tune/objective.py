@@ -1,4 +1,4 @@
-"""The CSO objective: time-domain criteria of the closed-loop tracking error (DESIGN §5).
+"""The CSO objective: time-domain criteria of the closed-loop tracking error (docs/design.md §5).
 
 **Scenarios.** A fixed, seeded set of S reference scenarios "of the kind the agent produces":
 q_d(0) drawn uniformly in the middle 60 % of each joint's range — except a ``straight_share`` of
@@ -22,7 +22,7 @@ starts at 1 and should decay to 0:
 They combine as Gaing (2004): W = (1 − e^−β)(M_p + E_ss) + e^−β (t_s − t_r), β = ``gaing_beta``
 (1), summed over joints and averaged over scenarios. A run that diverges scores +inf.
 
-**Constraints** (DESIGN §5). W is blind to what makes gains unusable, so the score is
+**Constraints** (docs/design.md §5). W is blind to what makes gains unusable, so the score is
 
     score = W + effort_weight · P + saturation_weight · L       (stable candidates)
     score = +inf                                                 (otherwise)

@@ -1,4 +1,5 @@
-"""Stability of the sampled closed loop at rest, over a pose grid (DESIGN §5, stability constraint).
+"""Stability of the sampled closed loop at rest, over a pose grid (docs/design.md §5, the
+stability constraint).
 
 The core holds τ over each 1 ms period, so a loop whose continuous-time version is stable can
 still diverge once its gains are large against the sampling rate. For the joint PID this depends
