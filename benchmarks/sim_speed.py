@@ -35,8 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from armexp.sim import reference
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, gain_vector
-from armexp.sim.core import Simulator, simulate_batch
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant, Uncertainty
+from armexp.sim.simulator import Simulator, simulate_batch
 
 TARGET_STEPS_PER_S = 5e6
 TARGET_RATIO = 200.0

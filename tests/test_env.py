@@ -17,7 +17,7 @@ from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import clearance, segment_hits, tips
 from armexp.envs.reach import ReachEnv, ReachSettings
 from armexp.envs.workspace import build_workspace
-from armexp.sim.core import trajectory_columns
+from armexp.sim.trajectory import trajectory_columns
 
 
 @pytest.fixture(scope="module")

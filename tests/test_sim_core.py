@@ -1,4 +1,5 @@
-"""The compiled closed loop (`armexp.sim.core`): against the numpy reference, and its contracts."""
+"""The compiled closed loop (`armexp.sim.simulator` and the modules it runs): against the numpy
+reference, and its contracts."""
 
 from __future__ import annotations
 
@@ -8,22 +9,16 @@ import numpy as np
 import pytest
 
 from armexp.sim import reference
+from armexp.sim.angle_cache import ROTATE_MAX, series, turn
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
-from armexp.sim.core import (
-    ROTATE_MAX,
-    Simulator,
-    _run_generic,
-    _run_two,
-    _series,
-    _turn,
-    advance,
-    make_work,
-    simulate_batch,
-    trajectory_columns,
-)
 from armexp.sim.dynamics import tip_position
+from armexp.sim.generic_path import run_generic
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant, Uncertainty
 from armexp.sim.noise import stream_key, uniform, uniform_numpy
+from armexp.sim.simulator import Simulator, advance, simulate_batch
+from armexp.sim.trajectory import trajectory_columns
+from armexp.sim.two_link_path import run_two_link
+from armexp.sim.work import make_work
 
 HOLD = 30
 
@@ -125,7 +120,7 @@ def test_two_link_fast_path_matches_generic_path() -> None:
     commands = np.random.default_rng(0).uniform(-0.4, 0.4, (40, 2))
     traces = []
     gains = controller_gains("subsystem_adaptive", 2)
-    for run in (_run_two, _run_generic):
+    for run in (run_two_link, run_generic):
         state = np.zeros(9)
         state[:2] = [0.35, -0.25]
         state[4:6] = [0.3, -0.2]
@@ -188,15 +183,15 @@ def test_angle_series_matches_libm() -> None:
         rng.uniform(-10, 10, 4000), rng.uniform(-ROTATE_MAX, ROTATE_MAX, 4000), strict=True
     ):
         d = d * 10.0 ** rng.uniform(-4, 0)
-        c, s = _series(math.cos(phi0), math.sin(phi0), d)
+        c, s = series(math.cos(phi0), math.sin(phi0), d)
         p0, dd = np.longdouble(phi0), np.longdouble(d)
         want_c = np.cos(p0) * np.cos(dd) - np.sin(p0) * np.sin(dd)
         want_s = np.sin(p0) * np.cos(dd) + np.cos(p0) * np.sin(dd)
         worst = max(worst, abs(float(c - want_c)), abs(float(s - want_s)))
     assert worst < 4.5e-16
     # Far from the cached angle (or with nothing cached) libm answers.
-    assert _turn(1.0, 0.5, math.cos(0.5), math.sin(0.5)) == (math.cos(1.0), math.sin(1.0))
-    assert _turn(1.0, math.nan, 0.0, 0.0) == (math.cos(1.0), math.sin(1.0))
+    assert turn(1.0, 0.5, math.cos(0.5), math.sin(0.5)) == (math.cos(1.0), math.sin(1.0))
+    assert turn(1.0, math.nan, 0.0, 0.0) == (math.cos(1.0), math.sin(1.0))
 
 
 def test_uniform_exponential_convergence() -> None:

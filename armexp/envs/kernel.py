@@ -11,8 +11,8 @@ import math
 import numpy as np
 from numba import njit
 
-from armexp.sim.core import advance
 from armexp.sim.dynamics import tip_position
+from armexp.sim.simulator import advance
 
 # Status codes of `env_step`, in `armexp.envs.reach.REASONS` order (0 = still running).
 RUNNING, REACHED, COLLISION, JOINT_LIMIT, DIVERGED = 0, 1, 2, 3, 4

@@ -73,7 +73,7 @@ def control(
 ) -> float:
     """Write the torque into ``tau`` and return the adaptive law's ρ̂' (0 for PID).
 
-    ``state`` is [q, q̇, q_d, ∫e1, ρ̂]; see `armexp.sim.core`.
+    ``state`` is [q, q̇, q_d, ∫e1, ρ̂]; see `armexp.sim.simulator`.
     """
     n = dqd.shape[0]
     rho_dot = 0.0
