@@ -265,6 +265,34 @@ def test_seeds_chunking_and_reset() -> None:
     assert one.step_index == many.step_index == 3000
 
 
+def test_kernel_args_and_record_steps_drive_the_loop_like_advance() -> None:
+    """A compiled kernel run on `Simulator.kernel_args` and accounted by `record_steps` leaves the
+    simulator as `Simulator.advance` does, bit for bit, a divergence included."""
+    plant = Plant.build(TWO_LINK_PAPER, Uncertainty.paper())
+    cmds = np.random.default_rng(3).uniform(-0.4, 0.4, (20, 2))
+    no_log = np.zeros((0, len(trajectory_columns(2))))
+    outcomes = []
+    for gains in (controller_gains("subsystem_adaptive", 2), np.array([1e7, 1e7, 1.8, 1e-3, 0.69])):
+        by_method, by_kernel = (
+            Simulator(plant, "subsystem_adaptive", gains, q0=[0.3, 0.1], qd0=[0.25, 0.0], seed=2)
+            for _ in range(2)
+        )
+        for cmd in cmds:
+            by_method.advance(cmd, HOLD)
+            if by_kernel.diverged:
+                continue
+            state, work, model, g, kind, dt, key, k0, ramp = by_kernel.kernel_args()
+            done = advance(state, cmd, k0, HOLD, kind, g, model, dt, key, work, no_log, ramp)
+            by_kernel.record_steps(done, HOLD)
+        assert np.array_equal(by_method.state, by_kernel.state, equal_nan=True)
+        assert np.array_equal(by_method.tau, by_kernel.tau, equal_nan=True)
+        assert by_method.step_index == by_kernel.step_index
+        assert by_method.diverged == by_kernel.diverged
+        outcomes.append((by_kernel.diverged, by_kernel.step_index))
+    assert outcomes[0] == (False, 20 * HOLD)
+    assert outcomes[1][0] and outcomes[1][1] < 20 * HOLD
+
+
 def test_simulate_batch_equals_sequential_runs() -> None:
     n = 2
     plant = Plant.build(TWO_LINK_PAPER, Uncertainty.paper())

@@ -81,6 +81,7 @@ def env_step(
     dt: float,
     key: np.uint64,
     k0: int,
+    ramp: bool,
     hold: int,
     action: np.ndarray,
     bound: np.ndarray,
@@ -95,9 +96,12 @@ def env_step(
     high: np.ndarray,
     obs: np.ndarray,
     log: np.ndarray,
-    ramp: bool,
 ) -> tuple[float, int, int, float]:
     """One environment step. Updates ``tip`` (x, y) in place and fills ``obs``.
+
+    The arguments up to ``ramp`` are the closed loop's
+    (`armexp.sim.simulator.Simulator.kernel_args`); ``hold`` controller steps run towards the
+    clipped ``action`` scaled by ``bound``.
 
     Returns (reward, status, controller steps completed, tip error). The checks run in the order
     collision, joint limit, reach, so a step that collides while reaching is a collision.

@@ -251,15 +251,11 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         log = np.zeros((self._hold, self._log_width)) if self.record else self._no_log
         obs = np.empty(self._obs_low.shape[0], dtype=np.float32)
         reward, status, done, self.error = env_step(
-            sim.state, sim._work, sim._model, sim.gains, sim.kind, sim.plant.dt, sim._key,
-            sim.step_index, self._hold, np.asarray(action, dtype=np.float64), self._bound,
+            *sim.kernel_args(), self._hold, np.asarray(action, dtype=np.float64), self._bound,
             self._lower, self._upper, self._obstacles, self._collide, self.target, self.tip,
-            self._params, self._obs_low, self._obs_high, obs, log, sim.ramp,
+            self._params, self._obs_low, self._obs_high, obs, log,
         )  # fmt: skip
-        sim.step_index += done
-        if done < self._hold:
-            sim.diverged = True
-            sim.step_index += 1
+        sim.record_steps(done, self._hold)
         if self.record:
             self._rows.append(log[: done + 1] if done < self._hold else log)
         self.steps += 1

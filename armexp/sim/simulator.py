@@ -226,12 +226,34 @@ class Simulator:
             rows,
             self.ramp,
         )
+        self.record_steps(done, n_steps)
+        if done < n_steps:
+            return rows[: done + 1] if log else None
+        return rows if log else None
+
+    def kernel_args(self) -> tuple[Array, Array, Model, Array, int, float, np.uint64, int, bool]:
+        """The closed loop as the leading arguments of a compiled kernel that runs it by `advance`
+        (such as `armexp.envs.kernel.env_step`): ``(state, work, model, gains, kind, dt, key,
+        step_index, ramp)``.
+
+        The arrays are this simulator's own, updated in place by the kernel; pass the number of
+        steps `advance` returned there to `record_steps`. Do not call it after a divergence.
+        """
+        return (
+            self.state, self._work, self._model, self.gains, self.kind, self.plant.dt, self._key,
+            self.step_index, self.ramp,
+        )  # fmt: skip
+
+    def record_steps(self, done: int, n_steps: int) -> None:
+        """Account for a run of ``n_steps`` periods of which `advance` completed ``done``.
+
+        The step index moves past the completed steps; a shorter run diverged in its next step,
+        which was run too: the index counts it and `diverged` is set.
+        """
         self.step_index += done
         if done < n_steps:
             self.diverged = True
             self.step_index += 1
-            return rows[: done + 1] if log else None
-        return rows if log else None
 
     @property
     def q(self) -> Array:
