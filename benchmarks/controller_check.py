@@ -29,7 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from armexp.builders import build_plant, build_scenario
 from armexp.config import compose_config
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, gain_mapping, gain_vector
-from armexp.sim.core import Simulator, trajectory_columns
+from armexp.sim.simulator import Simulator
+from armexp.sim.trajectory import trajectory_columns
 from armexp.stages.tune import build_objective, search_box
 from armexp.tune import cuckoo_search
 from armexp.tune.stability import pose_grid

@@ -13,7 +13,10 @@ It prints, for the paper's two-link arm with the paper's adaptive gains and eq. 
 * reference steps/s: ``armexp.sim.reference.simulate`` on fewer steps;
 * the ratios compiled/reference and batched/reference, and PASS/MISS against the targets
   (≥ 5 million steps/s compiled on one core, ≥ 200× the reference);
-* the three-link compiled steps/s, for information.
+* the three-link compiled steps/s, for information;
+* the unrolled two-link loop (`armexp.sim.two_link_path`) against the generic n-link loop
+  (`armexp.sim.generic_path`) on the same n = 2 workload, one thread, and their ratio: the
+  unrolled loop earns its code only at ≥ 1.5× the generic one.
 
 A "step" is one controller period: the controller plus one RK4 step of the plant (1 ms).
 The first run compiles the numba code (cached in ``__pycache__`` afterwards).
@@ -35,12 +38,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from armexp.sim import reference
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, gain_vector
-from armexp.sim.core import Simulator, simulate_batch
+from armexp.sim.generic_path import run_generic
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant, Uncertainty
+from armexp.sim.noise import stream_key
+from armexp.sim.simulator import Simulator, simulate_batch
+from armexp.sim.trajectory import log_width
+from armexp.sim.two_link_path import run_two_link
+from armexp.sim.work import make_work
 
 TARGET_STEPS_PER_S = 5e6
 TARGET_RATIO = 200.0
 HOLD = 30  # controller steps per command (the agent's 30 ms)
+FAST_PATH_MIN = 1.5  # the unrolled two-link loop must beat the generic loop by this factor
 
 
 def _best_of(repeats: int, fn: Callable[[], None]) -> float:
@@ -70,6 +79,51 @@ def compiled_rate(arm: ArmModel, unc: Uncertainty, steps: int, repeats: int) -> 
             raise RuntimeError("benchmark run diverged")
 
     return steps / _best_of(repeats, run)
+
+
+def path_rates(steps: int, repeats: int) -> tuple[float, float]:
+    """Steps/s of the unrolled two-link loop and of the generic loop, same n = 2 workload.
+
+    Both run one long command (the paper's two-link arm and adaptive gains, as in
+    `compiled_rate`) on the current numba thread count; their repeats alternate so that a
+    change of machine load hits both alike.
+    """
+    plant = Plant.build(TWO_LINK_PAPER, Uncertainty.paper())
+    model = plant.packed()
+    gains = gain_vector(ADAPTIVE, PAPER_GAINS, 2)
+    q0 = np.array([0.3, -0.2])
+    commands = np.array([[0.05, -0.2]])
+    key = np.uint64(stream_key(1))
+    no_log = np.zeros((0, log_width(2)))
+    no_trace = np.empty((0, 4))
+    finals: dict[Callable[..., tuple[int, bool]], np.ndarray] = {}
+
+    def once(run: Callable[..., tuple[int, bool]], n_steps: int) -> float:
+        state = np.zeros(9)
+        state[:2] = q0 + 0.05
+        state[4:6] = q0
+        work = make_work(2)
+        t0 = time.perf_counter()
+        done, diverged = run(
+            state, commands, n_steps, 0, ADAPTIVE, gains, model, plant.dt, key, work, no_log,
+            no_trace, True,
+        )  # fmt: skip
+        elapsed = time.perf_counter() - t0
+        if diverged or done != n_steps:
+            raise RuntimeError("benchmark run diverged")
+        finals[run] = state
+        return elapsed
+
+    paths = (run_two_link, run_generic)
+    for run in paths:
+        once(run, 1000)  # compile (or load the cache) and warm up
+    best = dict.fromkeys(paths, np.inf)
+    for _ in range(repeats):
+        for run in paths:
+            best[run] = min(best[run], once(run, steps))
+    if np.abs(finals[run_two_link] - finals[run_generic]).max() > 1e-9:
+        raise RuntimeError("the two loops disagree")
+    return steps / best[run_two_link], steps / best[run_generic]
 
 
 def batch_rate(candidates: int, scenarios: int, run_steps: int, repeats: int) -> float:
@@ -137,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     numba.set_num_threads(1)
     two = compiled_rate(TWO_LINK_PAPER, Uncertainty.paper(), steps, repeats)
     three = compiled_rate(THREE_LINK, Uncertainty.off(3), max(steps // 5, 1000), repeats)
+    fast, generic = path_rates(steps, repeats)
     numba.set_num_threads(cores)
     batched = batch_rate(candidates, scenarios, run_steps, repeats)
     ref = reference_rate(ref_steps)
@@ -154,6 +209,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"compiled / reference : {two / ref:14,.0f} x")
     print(f"batched / reference  : {batched / ref:14,.0f} x")
     print(f"three-link, one core : {three:14,.0f} steps/s   (information)")
+    print(f"n = 2 unrolled loop  : {fast:14,.0f} steps/s   (one core; both loops on one workload)")
+    print(f"n = 2 generic loop   : {generic:14,.0f} steps/s")
+    print(
+        f"unrolled / generic   : {fast / generic:14.2f} x   (keep the unrolled loop at >= "
+        f"{FAST_PATH_MIN}x: {'KEEP' if fast / generic >= FAST_PATH_MIN else 'DROP'})"
+    )
     print(
         f"target >= {TARGET_STEPS_PER_S / 1e6:.0f} M steps/s compiled on one core: "
         f"{'PASS' if ok_speed else 'MISS'}"

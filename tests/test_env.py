@@ -18,7 +18,7 @@ from armexp.envs.geometry import clearance, segment_hits, tips
 from armexp.envs.observation import OFFSET
 from armexp.envs.reach import ReachEnv, ReachSettings
 from armexp.envs.workspace import build_workspace
-from armexp.sim.core import trajectory_columns
+from armexp.sim.trajectory import trajectory_columns
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
-from armexp.sim.core import Simulator, trajectory_columns
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant, Uncertainty
+from armexp.sim.simulator import Simulator
+from armexp.sim.trajectory import trajectory_columns
 
 DATA = Path(__file__).parent / "data"
 HOLD = 30

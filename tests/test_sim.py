@@ -6,9 +6,9 @@ import numpy as np
 
 from armexp.sim import reference as ref
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
-from armexp.sim.core import Simulator
 from armexp.sim.dynamics import energy
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, Plant, Uncertainty
+from armexp.sim.simulator import Simulator
 
 PAPER = gain_vector(ADAPTIVE, PAPER_GAINS, 2)
 

@@ -1,4 +1,5 @@
-"""The compiled closed loop (`armexp.sim.core`): against the numpy reference, and its contracts."""
+"""The compiled closed loop (`armexp.sim.simulator` and the modules it runs): against the numpy
+reference, and its contracts."""
 
 from __future__ import annotations
 
@@ -8,22 +9,16 @@ import numpy as np
 import pytest
 
 from armexp.sim import reference
+from armexp.sim.angle_cache import ROTATE_MAX, series, turn
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
-from armexp.sim.core import (
-    ROTATE_MAX,
-    Simulator,
-    _run_generic,
-    _run_two,
-    _series,
-    _turn,
-    advance,
-    make_work,
-    simulate_batch,
-    trajectory_columns,
-)
 from armexp.sim.dynamics import tip_position
+from armexp.sim.generic_path import run_generic
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant, Uncertainty
 from armexp.sim.noise import stream_key, uniform, uniform_numpy
+from armexp.sim.simulator import Simulator, advance, simulate_batch
+from armexp.sim.trajectory import trajectory_columns
+from armexp.sim.two_link_path import run_two_link
+from armexp.sim.work import make_work
 
 HOLD = 30
 
@@ -125,7 +120,7 @@ def test_two_link_fast_path_matches_generic_path() -> None:
     commands = np.random.default_rng(0).uniform(-0.4, 0.4, (40, 2))
     traces = []
     gains = controller_gains("subsystem_adaptive", 2)
-    for run in (_run_two, _run_generic):
+    for run in (run_two_link, run_generic):
         state = np.zeros(9)
         state[:2] = [0.35, -0.25]
         state[4:6] = [0.3, -0.2]
@@ -188,15 +183,15 @@ def test_angle_series_matches_libm() -> None:
         rng.uniform(-10, 10, 4000), rng.uniform(-ROTATE_MAX, ROTATE_MAX, 4000), strict=True
     ):
         d = d * 10.0 ** rng.uniform(-4, 0)
-        c, s = _series(math.cos(phi0), math.sin(phi0), d)
+        c, s = series(math.cos(phi0), math.sin(phi0), d)
         p0, dd = np.longdouble(phi0), np.longdouble(d)
         want_c = np.cos(p0) * np.cos(dd) - np.sin(p0) * np.sin(dd)
         want_s = np.sin(p0) * np.cos(dd) + np.cos(p0) * np.sin(dd)
         worst = max(worst, abs(float(c - want_c)), abs(float(s - want_s)))
     assert worst < 4.5e-16
     # Far from the cached angle (or with nothing cached) libm answers.
-    assert _turn(1.0, 0.5, math.cos(0.5), math.sin(0.5)) == (math.cos(1.0), math.sin(1.0))
-    assert _turn(1.0, math.nan, 0.0, 0.0) == (math.cos(1.0), math.sin(1.0))
+    assert turn(1.0, 0.5, math.cos(0.5), math.sin(0.5)) == (math.cos(1.0), math.sin(1.0))
+    assert turn(1.0, math.nan, 0.0, 0.0) == (math.cos(1.0), math.sin(1.0))
 
 
 def test_uniform_exponential_convergence() -> None:
@@ -268,6 +263,34 @@ def test_seeds_chunking_and_reset() -> None:
     assert np.array_equal(long_rows, short_rows)
     assert np.array_equal(one.state, many.state)
     assert one.step_index == many.step_index == 3000
+
+
+def test_kernel_args_and_record_steps_drive_the_loop_like_advance() -> None:
+    """A compiled kernel run on `Simulator.kernel_args` and accounted by `record_steps` leaves the
+    simulator as `Simulator.advance` does, bit for bit, a divergence included."""
+    plant = Plant.build(TWO_LINK_PAPER, Uncertainty.paper())
+    cmds = np.random.default_rng(3).uniform(-0.4, 0.4, (20, 2))
+    no_log = np.zeros((0, len(trajectory_columns(2))))
+    outcomes = []
+    for gains in (controller_gains("subsystem_adaptive", 2), np.array([1e7, 1e7, 1.8, 1e-3, 0.69])):
+        by_method, by_kernel = (
+            Simulator(plant, "subsystem_adaptive", gains, q0=[0.3, 0.1], qd0=[0.25, 0.0], seed=2)
+            for _ in range(2)
+        )
+        for cmd in cmds:
+            by_method.advance(cmd, HOLD)
+            if by_kernel.diverged:
+                continue
+            state, work, model, g, kind, dt, key, k0, ramp = by_kernel.kernel_args()
+            done = advance(state, cmd, k0, HOLD, kind, g, model, dt, key, work, no_log, ramp)
+            by_kernel.record_steps(done, HOLD)
+        assert np.array_equal(by_method.state, by_kernel.state, equal_nan=True)
+        assert np.array_equal(by_method.tau, by_kernel.tau, equal_nan=True)
+        assert by_method.step_index == by_kernel.step_index
+        assert by_method.diverged == by_kernel.diverged
+        outcomes.append((by_kernel.diverged, by_kernel.step_index))
+    assert outcomes[0] == (False, 20 * HOLD)
+    assert outcomes[1][0] and outcomes[1][1] < 20 * HOLD
 
 
 def test_simulate_batch_equals_sequential_runs() -> None:

@@ -1,4 +1,4 @@
-"""Physics of the compiled arm model (DESIGN.md §3): M, C, G, energy, tip kinematics.
+"""Physics of the compiled arm model (docs/design.md §3): M, C, G, energy, tip kinematics.
 
 Every check compares the compiled terms (`armexp.sim.dynamics`) with a formulation written here,
 independently of `armexp.sim.model`'s absolute-angle form.
@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from armexp.sim.core import Simulator
 from armexp.sim.dynamics import energy, mass_and_bias, tip_jacobian, tip_position
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant
+from armexp.sim.simulator import Simulator
 
 ARMS = [
     pytest.param(TWO_LINK_PAPER, id="two_link_paper"),

@@ -13,8 +13,9 @@ from omegaconf import DictConfig
 from armexp.builders import build_plant
 from armexp.cli import main
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
-from armexp.sim.core import Simulator, trajectory_columns
 from armexp.sim.model import TWO_LINK_PAPER, Plant, Uncertainty
+from armexp.sim.simulator import Simulator
+from armexp.sim.trajectory import trajectory_columns
 from armexp.stages.tune import build_objective
 from armexp.tune import stability
 from tests.helpers import SMALL_TUNE, stage_runs

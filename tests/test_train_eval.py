@@ -15,7 +15,7 @@ from mlflow.tracking import MlflowClient
 
 from armexp.agents.sac import ResumableSAC
 from armexp.cli import main
-from armexp.sim.core import trajectory_columns
+from armexp.sim.trajectory import trajectory_columns
 from tests.helpers import SMALL_TRAIN, interrupt_training_at, stage_runs
 
 

@@ -11,8 +11,8 @@ import math
 import numpy as np
 from numba import njit
 
-from armexp.sim.core import advance
 from armexp.sim.dynamics import tip_position
+from armexp.sim.simulator import advance
 
 # Status codes of `env_step`, in `armexp.envs.reach.REASONS` order (0 = still running).
 RUNNING, REACHED, COLLISION, JOINT_LIMIT, DIVERGED = 0, 1, 2, 3, 4
@@ -81,13 +81,13 @@ def env_step(
     dt: float,
     key: np.uint64,
     k0: int,
+    ramp: bool,
     hold: int,
     action: np.ndarray,
     bound: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
     obstacles: np.ndarray,
-    collide: np.ndarray,
     target: np.ndarray,
     tip: np.ndarray,
     params: np.ndarray,
@@ -95,14 +95,15 @@ def env_step(
     high: np.ndarray,
     obs: np.ndarray,
     log: np.ndarray,
-    ramp: bool,
 ) -> tuple[float, int, int, float]:
     """One environment step. Updates ``tip`` (x, y) in place and fills ``obs``.
 
+    The arguments up to ``ramp`` are the closed loop's
+    (`armexp.sim.simulator.Simulator.kernel_args`); ``hold`` controller steps run towards the
+    clipped ``action`` scaled by ``bound``.
+
     Returns (reward, status, controller steps completed, tip error). The checks run in the order
     collision, joint limit, reach, so a step that collides while reaching is a collision.
-    Collisions are checked against the circles of ``collide`` (``obstacles``, or those grown by
-    a training clearance); the observation measures ``obstacles``.
     """
     n = state.shape[0] // 4
     dqd = np.empty(n)
@@ -127,7 +128,7 @@ def env_step(
         for j in range(n):
             if q[j] < lower[j] or q[j] > upper[j]:
                 outside = True
-        if segment_enters(x0, y0, tip[0], tip[1], collide):
+        if segment_enters(x0, y0, tip[0], tip[1], obstacles):
             status = COLLISION
             reward = -params[P_COLLISION]
         elif outside:

@@ -3,7 +3,7 @@
 The environment is the closed loop of the paper's §V: the agent's action is a bounded joint
 velocity reference (eq. 7a); the tuned low-level controller (Algorithm 3, or the PID baseline)
 tracks it at 1 kHz on the uncertain plant (eqs. 2, 40) for one action period (30 ms, 33.33 Hz), in
-one compiled call of `armexp.sim.core`.
+one compiled call (`armexp.envs.kernel.env_step`, which runs `armexp.sim.simulator.advance`).
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ from armexp.envs.workspace import (
     joint_grid,
     shortest_path,
 )
-from armexp.sim.core import Simulator, log_width, trajectory_columns
 from armexp.sim.model import Plant
+from armexp.sim.simulator import Simulator
+from armexp.sim.trajectory import log_width, trajectory_columns
 
 #: Why an episode ended (``info["reason"]``), in `armexp.envs.kernel` status order; "" while it
 #: runs.
@@ -64,7 +65,7 @@ class ReachSettings:
     min_target_distance: float = 0.2
     max_target_time: float = 12.0
     workspace_cells: int = 40_000
-    #: The reference generator between actions (`armexp.sim.core.REFERENCES`).
+    #: The reference generator between actions (`armexp.sim.step.REFERENCES`).
     reference: str = "ramp"
 
     @property
@@ -239,15 +240,11 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         log = np.zeros((self._hold, self._log_width)) if self.record else self._no_log
         obs = np.empty(self._obs_low.shape[0], dtype=np.float32)
         reward, status, done, self.error = env_step(
-            sim.state, sim._work, sim._model, sim.gains, sim.kind, sim.plant.dt, sim._key,
-            sim.step_index, self._hold, np.asarray(action, dtype=np.float64), self._bound,
-            self._lower, self._upper, self._obstacles, self._obstacles, self.target, self.tip,
-            self._params, self._obs_low, self._obs_high, obs, log, sim.ramp,
+            *sim.kernel_args(), self._hold, np.asarray(action, dtype=np.float64), self._bound,
+            self._lower, self._upper, self._obstacles, self.target, self.tip,
+            self._params, self._obs_low, self._obs_high, obs, log,
         )  # fmt: skip
-        sim.step_index += done
-        if done < self._hold:
-            sim.diverged = True
-            sim.step_index += 1
+        sim.record_steps(done, self._hold)
         if self.record:
             self._rows.append(log[: done + 1] if done < self._hold else log)
         self.steps += 1
@@ -296,8 +293,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         }
 
     def trajectory(self) -> Array:
-        """The episode's 1 kHz rows (`armexp.sim.core.trajectory_columns` plus the tip's target
-        error in m); needs ``record=True``."""
+        """The episode's 1 kHz rows (`armexp.sim.trajectory.trajectory_columns` plus the tip's
+        target error in m); needs ``record=True``."""
         if not self.record:
             raise RuntimeError("trajectory() needs ReachEnv(record=True).")
         if not self._rows:

@@ -1,7 +1,7 @@
 """Compiled rigid-body terms of the n-link arm: M(q), C(q, q̇)q̇ + G(q), tip kinematics, energy.
 
 Formulas in `armexp.sim.model`. The kernels work from the cosines and sines of the absolute link
-angles θ_a, which the closed loop (`armexp.sim.core`) keeps up to date by rotation instead of
+angles θ_a, which the closed loop (`armexp.sim.angle_cache`) keeps up to date by rotation instead of
 calling libm; `mass_and_bias` is the self-contained entry point (it evaluates the trigonometry
 itself). Every hot-loop function writes into caller-owned buffers so the 1 kHz loop never
 allocates.
@@ -110,7 +110,7 @@ def add_uncertainty(
 ) -> None:
     """acc += F(q, q̇) + τ_d(t) (eq. 2 / eq. 40) by libm; ``noise`` holds this period's u.
 
-    The closed loop evaluates the same terms with cached rotations (`armexp.sim.core`); this
+    The closed loop evaluates the same terms with cached rotations (`armexp.sim.angle_cache`); this
     direct form is kept for checks and tools.
     """
     for r in range(f_terms.shape[0]):

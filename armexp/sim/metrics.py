@@ -1,4 +1,4 @@
-"""Tracking metrics of a logged closed-loop trajectory (`armexp.sim.core.trajectory_columns`).
+"""Tracking metrics of a logged closed-loop trajectory (`armexp.sim.trajectory.trajectory_columns`).
 
 Definitions (used by `armexp simulate` now and by evaluation's Table III later):
 

@@ -1,4 +1,4 @@
-"""Physical description of the planar arm and of the plant's unknown terms (DESIGN.md §3).
+"""Physical description of the planar arm and of the plant's unknown terms (docs/design.md §3).
 
 The arm is a serial chain of uniform slender rods in a vertical plane. Everything the compiled core
 needs is derived once here, as small float arrays, so the hot loop never touches Python objects.

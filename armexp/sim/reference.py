@@ -1,9 +1,9 @@
 """Plain-numpy reference of the closed loop, written for clarity, not speed.
 
-It implements the same equations as the compiled core (`armexp.sim.core`) directly from the paper
-(eq. 1/2 plant, eq. 40 unknown terms, Algorithm 3 / eqs. 4–12 controller, joint PID) with numpy
-array expressions and `numpy.linalg.solve`. Tests hold the compiled core to it within 1e-9, and the
-speed benchmark measures against it.
+It implements the same equations as the compiled core (`armexp.sim.simulator`) directly from the
+paper (eq. 1/2 plant, eq. 40 unknown terms, Algorithm 3 / eqs. 4–12 controller, joint PID) with
+numpy array expressions and `numpy.linalg.solve`. Tests hold the compiled core to it within 1e-9,
+and the speed benchmark measures against it.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from armexp.sim.controllers import ADAPTIVE
-from armexp.sim.core import DIVERGENCE_SPEED
 from armexp.sim.model import SOURCE_Q, Array, Plant
 from armexp.sim.noise import uniform_numpy
+from armexp.sim.step import DIVERGENCE_SPEED
 
 
 def mass_matrix(plant: Plant, q: Array) -> Array:

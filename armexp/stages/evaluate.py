@@ -41,7 +41,7 @@ from armexp.agents.sac import load_sac
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
-from armexp.sim.core import trajectory_columns
+from armexp.sim.trajectory import trajectory_columns
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,8 @@
 """`armexp simulate`: one closed-loop run of the configured controller on a reference scenario.
 
 Logs tracking metrics (`armexp.sim.metrics`), run time, and the 1 kHz trajectory as the artifact
-``trajectory.parquet`` (columns `armexp.sim.core.trajectory_columns`; evaluation uses the same).
+``trajectory.parquet`` (columns `armexp.sim.trajectory.trajectory_columns`; evaluation uses the
+same).
 A diverging run is an outcome: it is logged (``diverged`` = 1) and the run still FINISHES.
 """
 
@@ -17,8 +18,9 @@ from omegaconf import DictConfig
 
 from armexp import tracking
 from armexp.builders import build_plant, build_scenario, controller_gains
-from armexp.sim.core import Simulator, trajectory_columns
 from armexp.sim.metrics import tracking_metrics
+from armexp.sim.simulator import Simulator
+from armexp.sim.trajectory import trajectory_columns
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ q_d(0) drawn uniformly in the middle 60 % of each joint's range — except a ``s
 them, which start with joints 2..n at 0 (the straight arm, where M(q)⁻¹ is largest) — q(0) =
 q_d(0) + offset with the offset's sign drawn per joint (magnitude ``offset`` rad), velocity
 commands uniform within the robot's bounds, redrawn every ``switch_period`` (30 ms) and fed
-through the reference generator (`armexp.sim.core.REFERENCES`), for ``horizon`` seconds, with the
+through the reference generator (`armexp.sim.step.REFERENCES`), for ``horizon`` seconds, with the
 plant's F and τ_d active (each scenario has its own τ_d seed). Every candidate sees the same
 scenarios.
 
@@ -43,9 +43,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armexp.sim.core import simulate_batch
 from armexp.sim.model import Array, Plant
 from armexp.sim.scenario import command_count, hold_steps
+from armexp.sim.simulator import simulate_batch
 from armexp.tune import stability
 
 
