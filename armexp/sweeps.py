@@ -56,7 +56,7 @@ def open_sweep(
     checks before a sweep do not need it.)"""
     from mlflow.tracking import MlflowClient
 
-    from armexp import tracking
+    from armexp import liveness, tracking
     from armexp.config import compose_config
 
     cfg = compose_config([*search_path, *fixed_overrides(overrides)])
@@ -69,15 +69,15 @@ def open_sweep(
             tags={
                 tracking.STAGE_TAG: "sweep",
                 "armexp.sweep_stage": stage,
-                tracking.HEARTBEAT_TAG: f"{time.time():.0f}",
-                tracking.PROCESS_TAG: tracking.process_identity(),
+                liveness.HEARTBEAT_TAG: f"{time.time():.0f}",
+                liveness.PROCESS_TAG: liveness.process_identity(),
             },
         )
     )
     sweep_id = run.info.run_id
     client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
     print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
-    return client, sweep_id, tracking.Heartbeat(sweep_id, tracking.store_uri(cfg))
+    return client, sweep_id, liveness.Heartbeat(sweep_id, tracking.store_uri(cfg))
 
 
 def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:

@@ -19,11 +19,9 @@ import json
 import logging
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -37,7 +35,7 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from armexp import store
+from armexp import liveness, store
 from armexp.config import ConfigError
 
 # Stages download small artifacts often (configs, gains, models): MLflow's per-download progress
@@ -48,14 +46,6 @@ STAGE_TAG = "armexp.stage"
 COMMIT_TAG = "armexp.git_commit"
 ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
-HEARTBEAT_TAG = "armexp.heartbeat"
-#: ``host:pid:start`` of the process running a stage: on the same host, a run whose process is
-#: gone is known dead at once, without waiting `STALE_S`.
-PROCESS_TAG = "armexp.process"
-#: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
-#: taken as one whose process died.
-HEARTBEAT_S = 30.0
-STALE_S = 150.0
 INPUTS_TAG = "armexp.inputs_hash"
 PARENT_TAG = "mlflow.parentRunId"
 #: The config a stage's result depends on; `inputs_hash` of these is tagged on every run, and
@@ -211,75 +201,6 @@ def parent(run_id: str) -> Iterator[None]:
         _parents.pop()
 
 
-class Heartbeat:
-    """Writes the time into the run's ``armexp.heartbeat`` tag every `HEARTBEAT_S` seconds
-    while the stage runs, so another process can tell a live run from one whose process died
-    (`is_alive`, `close_orphans`)."""
-
-    def __init__(self, run_id: str, uri: str) -> None:
-        self.run_id, self.client = run_id, MlflowClient(uri)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._beat, name="armexp-heartbeat", daemon=True)
-
-    def _beat(self) -> None:
-        while not self._stop.wait(HEARTBEAT_S):
-            try:
-                self.client.set_tag(self.run_id, HEARTBEAT_TAG, f"{time.time():.0f}")
-            except Exception as exc:  # a busy store: the next beat tries again
-                log.debug("heartbeat of %s not written: %s", self.run_id, exc)
-
-    def __enter__(self) -> Heartbeat:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-
-def heartbeat_age(run: Run) -> float:
-    """Seconds since the run's process last reported (its start when it never did)."""
-    beat = run.data.tags.get(HEARTBEAT_TAG)
-    last = float(beat) if beat else run.info.start_time / 1000.0
-    return time.time() - last
-
-
-def _process_start(pid: int) -> str | None:
-    """The start time of process `pid` in clock ticks since boot (Linux), None elsewhere or when
-    there is no such process; with the pid it names one process even after pids wrap round."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    return stat.rsplit(")", 1)[1].split()[19]  # field 22; the name in (…) may hold spaces
-
-
-def process_identity() -> str:
-    """This process as ``host:pid:start`` (the `PROCESS_TAG` value)."""
-    pid = os.getpid()
-    return f"{socket.gethostname()}:{pid}:{_process_start(pid) or ''}"
-
-
-def _process_gone(identity: str | None) -> bool:
-    """True when `identity` names a process on this host that no longer runs. A process on
-    another host, or one this platform cannot look up, is not known gone."""
-    if not identity:
-        return False
-    host, _, rest = identity.partition(":")
-    pid_text, _, start = rest.partition(":")
-    if host != socket.gethostname() or not pid_text.isdigit() or not start:
-        return False
-    return _process_start(int(pid_text)) != start
-
-
-def is_alive(run: Run) -> bool:
-    """A RUNNING run whose process is not known gone (`PROCESS_TAG`) and reported within
-    `STALE_S`."""
-    if run.info.status != "RUNNING" or _process_gone(run.data.tags.get(PROCESS_TAG)):
-        return False
-    return heartbeat_age(run) < STALE_S
-
-
 def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
     """Mark RUNNING runs whose process stopped reporting (killed, lost power) FAILED, with
     ``armexp.error`` saying so, and name each on stderr; returns their ids. A train run among them
@@ -288,12 +209,12 @@ def close_orphans(client: MlflowClient, experiment_id: str) -> list[str]:
     for run in client.search_runs(
         [experiment_id], "attributes.status = 'RUNNING'", max_results=1000
     ):
-        if STAGE_TAG not in run.data.tags or is_alive(run):
+        if STAGE_TAG not in run.data.tags or liveness.is_alive(run):
             continue
-        age = heartbeat_age(run)
-        gone = _process_gone(run.data.tags.get(PROCESS_TAG))
+        age = liveness.heartbeat_age(run)
+        gone = liveness.process_gone(run.data.tags.get(liveness.PROCESS_TAG))
         message = (
-            f"process stopped: {run.data.tags[PROCESS_TAG]} is gone"
+            f"process stopped: {run.data.tags[liveness.PROCESS_TAG]} is gone"
             if gone
             else f"process stopped: no heartbeat for {age:.0f} s"
         )
@@ -347,8 +268,8 @@ def stage_run(
     experiment_id = setup(cfg)
     tags = {
         STAGE_TAG: stage,
-        HEARTBEAT_TAG: f"{time.time():.0f}",
-        PROCESS_TAG: process_identity(),
+        liveness.HEARTBEAT_TAG: f"{time.time():.0f}",
+        liveness.PROCESS_TAG: liveness.process_identity(),
         **(extra_tags or {}),
     }
     commit = git_commit()
@@ -380,7 +301,7 @@ def stage_run(
         if not resume_run_id:
             log_batch(run.info.run_id, params=flatten(cfg))
             mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
-        with Heartbeat(run.info.run_id, store_uri(cfg)):
+        with liveness.Heartbeat(run.info.run_id, store_uri(cfg)):
             yield run
     except KeyboardInterrupt as exc:
         _note_error("interrupted")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 SMALL_TUNE = [
@@ -67,3 +68,15 @@ def interrupt_training_at(monkeypatch: Any, steps: int) -> None:
         return original(self)
 
     monkeypatch.setattr(EpisodeStats, "_on_step", interrupted)
+
+
+def config_dir_with_my_arm(tmp_path: Path) -> Path:
+    """A config folder for ``--config-dir`` with one extra robot option, ``robot=my_arm`` (the
+    paper arm under another name)."""
+    from armexp.config import config_dir
+
+    extra = tmp_path / "my_conf" / "robot"
+    extra.mkdir(parents=True)
+    text = (config_dir() / "robot" / "two_link_paper.yaml").read_text()
+    (extra / "my_arm.yaml").write_text(text.replace("name: two_link_paper", "name: my_arm"))
+    return extra.parent

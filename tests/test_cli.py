@@ -11,9 +11,8 @@ import yaml
 
 from armexp import tracking
 from armexp.cli import main, split_args
-from armexp.config import config_dir
 from armexp.sweeps import fixed_overrides, sweep_combinations
-from tests.helpers import stage_runs
+from tests.helpers import config_dir_with_my_arm, stage_runs
 
 
 def test_flags_and_overrides_are_told_apart_by_hydras_grammar() -> None:
@@ -81,12 +80,9 @@ def test_a_stages_help_is_hydras_and_checks_nothing(
 def test_a_config_dir_is_seen_by_the_check_of_every_sweep_job(
     runs_dir: Path, tmp_path: Path
 ) -> None:
-    extra = tmp_path / "my_conf" / "robot"
-    extra.mkdir(parents=True)
-    text = (config_dir() / "robot" / "two_link_paper.yaml").read_text()
-    (extra / "my_arm.yaml").write_text(text.replace("name: two_link_paper", "name: my_arm"))
+    conf = config_dir_with_my_arm(tmp_path)
     where = f"tracking.runs_dir={runs_dir}"
-    rc = main(["simulate", "-m", "-cd", str(extra.parent), "robot=my_arm", "seed=0,1",
+    rc = main(["simulate", "-m", "-cd", str(conf), "robot=my_arm", "seed=0,1",
                "scenario=hold", "scenario.duration=0.05", where])  # fmt: skip
     assert rc == 0
     runs = stage_runs(runs_dir, "simulate")

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import tracking
+from armexp import liveness
 from armexp.cli import main
 from tests.helpers import SMALL_TRAIN
 
@@ -67,16 +67,16 @@ def test_a_run_whose_process_died_is_closed_by_the_next_command(
     tells, after STALE_S."""
     runs = tmp_path / "runs"
     proc, run = _running_train(runs)
-    assert run.data.tags[tracking.PROCESS_TAG].split(":")[1] == str(proc.pid)
+    assert run.data.tags[liveness.PROCESS_TAG].split(":")[1] == str(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=60)
     client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
     assert client.get_run(run.info.run_id).info.status == "RUNNING"  # nobody could end it
     if not same_host:
-        monkeypatch.setattr(tracking.socket, "gethostname", lambda: "another-host")
+        monkeypatch.setattr(liveness.socket, "gethostname", lambda: "another-host")
         # The heartbeat is fresh: the run is taken for live until it has been silent STALE_S.
-        assert tracking.is_alive(client.get_run(run.info.run_id))
-        monkeypatch.setattr(tracking, "STALE_S", 0.0)  # the test does not wait that long
+        assert liveness.is_alive(client.get_run(run.info.run_id))
+        monkeypatch.setattr(liveness, "STALE_S", 0.0)  # the test does not wait that long
     assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
                  f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
     err = capsys.readouterr().err
@@ -103,8 +103,8 @@ def test_a_live_sweep_and_its_pipeline_parents_are_not_taken_for_dead(
     sweep, keeps its heartbeat and is not among them."""
     from armexp.stages import simulate
 
-    monkeypatch.setattr(tracking, "HEARTBEAT_S", 0.1)
-    monkeypatch.setattr(tracking, "STALE_S", 1.0)
+    monkeypatch.setattr(liveness, "HEARTBEAT_S", 0.1)
+    monkeypatch.setattr(liveness, "STALE_S", 1.0)
     real = simulate.run
 
     def slow(cfg: Any) -> Any:

@@ -16,7 +16,7 @@ import yaml
 from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
-from tests.helpers import stage_runs
+from tests.helpers import config_dir_with_my_arm, stage_runs
 
 
 def sqlite_uri(runs_dir: Path) -> str:
@@ -193,13 +193,8 @@ def test_a_bad_value_late_in_a_sweep_stops_it_before_any_job(
 def test_a_config_dir_given_on_the_command_line_is_seen_by_the_pre_run_check(
     runs_dir: Path, tmp_path: Path
 ) -> None:
-    from armexp.config import config_dir
-
-    extra = tmp_path / "my_conf" / "robot"
-    extra.mkdir(parents=True)
-    text = (config_dir() / "robot" / "two_link_paper.yaml").read_text()
-    (extra / "my_arm.yaml").write_text(text.replace("name: two_link_paper", "name: my_arm"))
-    rc = main(["simulate", "--config-dir", str(extra.parent), "robot=my_arm", "scenario=hold",
+    conf = config_dir_with_my_arm(tmp_path)
+    rc = main(["simulate", "--config-dir", str(conf), "robot=my_arm", "scenario=hold",
                "scenario.duration=0.05", f"tracking.runs_dir={runs_dir}"])  # fmt: skip
     assert rc == 0
     (run,) = _runs(runs_dir, "simulate")

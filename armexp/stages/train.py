@@ -31,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
-from armexp import tracking
+from armexp import liveness, tracking
 from armexp.agents.aids import TrainingContext, build_aids
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
@@ -111,10 +111,10 @@ def resume(cfg: DictConfig, check_overrides: bool = True) -> tracking.StageResul
     found = tracking.find_stage_run(
         cfg, "train", run_id=run_id, key="train.resume", statuses=("KILLED", "FAILED", "RUNNING")
     )
-    if tracking.is_alive(found):
+    if liveness.is_alive(found):
         raise ConfigError(
             f"train.resume={run_id} is not allowed: that run is still training in another "
-            f"process (its last heartbeat was {tracking.heartbeat_age(found):.0f} s ago); wait "
+            f"process (its last heartbeat was {liveness.heartbeat_age(found):.0f} s ago); wait "
             "for it to end or stop it first."
         )
     try:

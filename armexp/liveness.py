@@ -1,0 +1,99 @@
+"""Telling a live run from one whose process died: a heartbeat tag and the process's identity.
+
+A running stage tags its run with its process (`PROCESS_TAG`, ``host:pid:start``) and rewrites
+`HEARTBEAT_TAG` every `HEARTBEAT_S` seconds (`Heartbeat`). A RUNNING run is taken as dead when its
+process is gone from this host, or, from another host, when it has been silent for `STALE_S`
+(`is_alive`); `armexp.tracking.close_orphans` marks such runs FAILED.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+from pathlib import Path
+
+from mlflow.entities import Run
+from mlflow.tracking import MlflowClient
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_TAG = "armexp.heartbeat"
+#: ``host:pid:start`` of the process running a stage: on the same host, a run whose process is
+#: gone is known dead at once, without waiting `STALE_S`.
+PROCESS_TAG = "armexp.process"
+#: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
+#: taken as one whose process died.
+HEARTBEAT_S = 30.0
+STALE_S = 150.0
+
+
+class Heartbeat:
+    """Writes the time into the run's ``armexp.heartbeat`` tag every `HEARTBEAT_S` seconds
+    while the stage runs, so another process can tell a live run from one whose process died
+    (`is_alive`, `close_orphans`)."""
+
+    def __init__(self, run_id: str, uri: str) -> None:
+        self.run_id, self.client = run_id, MlflowClient(uri)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name="armexp-heartbeat", daemon=True)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(HEARTBEAT_S):
+            try:
+                self.client.set_tag(self.run_id, HEARTBEAT_TAG, f"{time.time():.0f}")
+            except Exception as exc:  # a busy store: the next beat tries again
+                log.debug("heartbeat of %s not written: %s", self.run_id, exc)
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def heartbeat_age(run: Run) -> float:
+    """Seconds since the run's process last reported (its start when it never did)."""
+    beat = run.data.tags.get(HEARTBEAT_TAG)
+    last = float(beat) if beat else run.info.start_time / 1000.0
+    return time.time() - last
+
+
+def _process_start(pid: int) -> str | None:
+    """The start time of process `pid` in clock ticks since boot (Linux), None elsewhere or when
+    there is no such process; with the pid it names one process even after pids wrap round."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat.rsplit(")", 1)[1].split()[19]  # field 22; the name in (…) may hold spaces
+
+
+def process_identity() -> str:
+    """This process as ``host:pid:start`` (the `PROCESS_TAG` value)."""
+    pid = os.getpid()
+    return f"{socket.gethostname()}:{pid}:{_process_start(pid) or ''}"
+
+
+def process_gone(identity: str | None) -> bool:
+    """True when `identity` names a process on this host that no longer runs. A process on
+    another host, or one this platform cannot look up, is not known gone."""
+    if not identity:
+        return False
+    host, _, rest = identity.partition(":")
+    pid_text, _, start = rest.partition(":")
+    if host != socket.gethostname() or not pid_text.isdigit() or not start:
+        return False
+    return _process_start(int(pid_text)) != start
+
+
+def is_alive(run: Run) -> bool:
+    """A RUNNING run whose process is not known gone (`PROCESS_TAG`) and reported within
+    `STALE_S`."""
+    if run.info.status != "RUNNING" or process_gone(run.data.tags.get(PROCESS_TAG)):
+        return False
+    return heartbeat_age(run) < STALE_S
