@@ -455,7 +455,7 @@ def test_out_dir_that_is_not_a_report_is_refused_and_left_as_it_was(
 def test_a_failing_report_keeps_the_previous_one(
     store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from armexp.stages import report
+    from armexp.report import page
 
     out = tmp_path / "report"
     assert _report(store, out) == 0
@@ -464,7 +464,7 @@ def test_a_failing_report_keeps_the_previous_one(
     def broken(*args: Any, **kwargs: Any) -> Any:
         raise RuntimeError("disk full (injected)")
 
-    monkeypatch.setattr(report.figures, "tip_paths", broken)
+    monkeypatch.setattr(page.figures, "tip_paths", broken)
     assert _report(store, out) == 1
     assert (out / "tables" / "table3_performance.md").read_text() == before
     assert (out / ".armexp-report").exists()

@@ -287,7 +287,6 @@ class SimulateStageConfig:
 class TuneStageConfig:
     run_name: str | None = None
     progress: bool = True
-    log_history_every: int = checked(1, at_least(1))
 
 
 @dataclass

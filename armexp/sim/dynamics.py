@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from armexp.sim.model import SOURCE_Q, Array
+from armexp.sim.model import Array
 
 _FAST = {"contract"}  # FMA contraction only: results move by rounding, never by reassociation.
 
@@ -102,25 +102,6 @@ def cholesky_solve(mass: Array, rhs: Array, low: Array, out: Array) -> None:
         for k in range(i + 1, n):
             s -= low[k, i] * out[k]
         out[i] = s / low[i, i]
-
-
-@njit(cache=True)
-def add_uncertainty(
-    q: Array, dq: Array, t: float, noise: Array, f_terms: Array, dist: Array, acc: Array
-) -> None:
-    """acc += F(q, q̇) + τ_d(t) (eq. 2 / eq. 40) by libm; ``noise`` holds this period's u.
-
-    The closed loop evaluates the same terms with cached rotations (`armexp.sim.angle_cache`); this
-    direct form is kept for checks and tools.
-    """
-    for r in range(f_terms.shape[0]):
-        src = int(f_terms[r, 4])
-        x = q[src] if int(f_terms[r, 3]) == SOURCE_Q else dq[src]
-        acc[int(f_terms[r, 0])] += f_terms[r, 1] * math.cos(f_terms[r, 2] * x)
-    for i in range(acc.shape[0]):
-        if dist[0, i] != 0.0:
-            acc[i] += dist[0, i] * math.cos(dist[1, i] * t)
-        acc[i] += dist[2, i] * noise[i]
 
 
 @njit(cache=True)
