@@ -226,8 +226,8 @@ def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstration
 @pytest.mark.parametrize(
     ("aids", "wrong"),
     [
-        ([f"+agent.aids.cloning={AIDS['cloning']}"], "without a PlannerDemonstrations aid"),
-        (["+agent.aids.x={_target_:collections.OrderedDict}"], "is not a training aid"),
+        ([f"+agent.aids.cloning={AIDS['cloning']}"], "without a PlannerDemonstrations listed"),
+        (["+agent.aids.x={_target_:collections.OrderedDict}"], "is not a training add-on"),
         (["+agent.aids.x={_target_:armexp.agents.cloning.BehaviourCloning,weight:-1}"],
          "weight=-1 must be greater than 0"),
     ],

@@ -18,7 +18,7 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.aids import TrainingAid, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 
 
 class ActorAverage(BaseCallback):
@@ -63,7 +63,7 @@ class ActorAverage(BaseCallback):
         return self.count
 
 
-class WeightAveraging(TrainingAid):
+class WeightAveraging(TrainingAddOn):
     """The final actor is the mean of its weights over the last ``tail`` share of the budget
     (`ActorAverage`; ``final/averaged_actors`` says how many). The checkpoint keeps the last
     weights; a resumed run averages from where it resumes. Uses no privileged knowledge."""

@@ -17,6 +17,7 @@ from mlflow.tracking import MlflowClient
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import KVWriter
 
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.tracking import log_batch, retry
 
 #: Artifact paths of a train run.
@@ -259,3 +260,24 @@ class HeldOutEval(BaseCallback):
         metrics = [Metric(k, v, now, self.num_timesteps) for k, v in point.items()]
         log_batch(self.run_id, metrics, client=self.client)
         return point
+
+
+class HeldOutChecks(TrainingAddOn):
+    """The `HeldOutEval` callback as a ``train.callbacks`` entry: every ``every`` environment
+    steps (0: never) the deterministic policy on ``targets`` workspace targets drawn with
+    ``seed`` (apart from `armexp eval`'s ``tasks.random_seed``)."""
+
+    def __init__(self, every: int, targets: int = 50, seed: int = 10_007) -> None:
+        if int(every) < 0 or int(targets) < 1:
+            raise ValueError(f"every={every} must be ≥ 0 and targets={targets} at least 1")
+        self.every, self.targets, self.seed = int(every), int(targets), int(seed)
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        if not self.every:
+            return []
+        from armexp.envs.reach import ReachEnv
+
+        probe = ReachEnv(ctx.settings)
+        rng = np.random.default_rng(self.seed)
+        targets = [probe.workspace.sample(rng) for _ in range(self.targets)]
+        return [HeldOutEval(ctx.run_id, self.every, probe, targets, ctx.stats)]

@@ -28,7 +28,7 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.aids import TrainingAid, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations
 
 
@@ -116,7 +116,7 @@ class DemonstrationCloning:
         self._handle.remove()
 
 
-class BehaviourCloning(TrainingAid):
+class BehaviourCloning(TrainingAddOn):
     """The cloning term above, with weight ``weight``, on the planner's demonstrations (listed
     before it in ``agent.aids``). Privileged: it imitates the planner."""
 

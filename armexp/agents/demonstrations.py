@@ -18,7 +18,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from armexp.agents.aids import TrainingAid, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.envs.reach import ReachEnv
 from armexp.sim.model import Array
 
@@ -127,7 +127,7 @@ def fill_replay(model: OffPolicyAlgorithm, demos: list[Demonstration]) -> None:
         buffer.add(obs[t], next_obs[t], actions[t], rewards[t], ends[t], infos)
 
 
-class PlannerDemonstrations(TrainingAid):
+class PlannerDemonstrations(TrainingAddOn):
     """``episodes`` planner episodes in the replay buffer before training (module doc); a
     resumed run's buffer starts empty and gets none. Privileged: the planner knows the
     obstacles."""

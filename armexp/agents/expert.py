@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.aids import TrainingAid, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.cloning import BehaviourCloning, DemonstrationCloning
 from armexp.envs.geometry import segment_hits, tips
 from armexp.envs.observation import ObservationLayout
@@ -180,7 +180,7 @@ class ExpertLabels(BaseCallback):
         return True
 
 
-class DaggerExpert(TrainingAid):
+class DaggerExpert(TrainingAddOn):
     """DAgger: every state the training environments visit is cloned with the action of a
     `TimeToGoExpert` kept ``margin`` (m) from obstacles that compares commands held
     ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the

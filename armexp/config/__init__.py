@@ -284,7 +284,7 @@ def _agent_checks(cfg: DictConfig) -> None:
             raise fail(
                 f"agent.aids.{name}", OmegaConf.to_container(spec) if isinstance(
                     spec, DictConfig) else spec,
-                "each aid is a config with a _target_ naming its class (armexp.agents.aids)",
+                "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
 
 

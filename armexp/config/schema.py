@@ -206,7 +206,7 @@ class AgentConfig:
         "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
     )
     #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
-    #: (`armexp.agents.aids`). None for the paper's plain SAC.
+    #: (`armexp.agents.addons`). None for the paper's plain SAC.
     aids: dict[str, Any] = field(default_factory=dict)
 
 
@@ -306,6 +306,18 @@ class TrainStageConfig:
     eval_every: int = checked(0, at_least(0))
     eval_targets: int = checked(50, at_least(1))
     eval_seed: int = checked(10_007, at_least(0))
+    #: Callbacks by name, each a config with a ``_target_`` (`armexp.agents.addons`); the
+    #: held-out checks take the three settings above.
+    callbacks: dict[str, Any] = field(
+        default_factory=lambda: {
+            "held_out": {
+                "_target_": "armexp.agents.callbacks.HeldOutChecks",
+                "every": "${train.eval_every}",
+                "targets": "${train.eval_targets}",
+                "seed": "${train.eval_seed}",
+            }
+        }
+    )
     progress: bool = True
     #: Torch threads of the training process (null: torch's default, one per core). One by
     #: default, so that jobs sharing a machine do not slow each other down

@@ -6,10 +6,10 @@ controller and robot; its id is tagged ``armexp.tune_run``) or, with ``train.gai
 
 Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
 per episode, reward, length, success and collision with their rates over the last 100 episodes.
-The learning aids of ``agent.aids`` (`armexp.agents.aids`: planner demonstrations, behaviour
+The learning aids of ``agent.aids`` (`armexp.agents.addons`: planner demonstrations, behaviour
 cloning, the DAgger expert, weight averaging) are built from their ``_target_`` and applied in
-order. With ``train.eval_every`` the policy is checked on held-out targets while training
-(``eval/*``).
+order, then the callbacks of ``train.callbacks`` (by default the held-out checks, which with
+``train.eval_every`` > 0 run the policy on held-out targets while training: ``eval/*``).
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
 buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
@@ -24,7 +24,6 @@ import time
 from typing import Any
 
 import mlflow
-import numpy as np
 import torch
 import yaml
 from omegaconf import DictConfig, OmegaConf
@@ -32,7 +31,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
 from armexp import liveness, tracking
-from armexp.agents.aids import TrainingContext, build_aids
+from armexp.agents.addons import TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
     MODEL_DIR,
@@ -41,7 +40,6 @@ from armexp.agents.callbacks import (
     Budget,
     Checkpoint,
     EpisodeStats,
-    HeldOutEval,
     MLflowOutputFormat,
     Progress,
     log_model,
@@ -50,7 +48,6 @@ from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
-from armexp.envs.reach import ReachEnv
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +91,9 @@ def step_budget(cfg: DictConfig) -> int:
 def run(cfg: DictConfig) -> tracking.StageResult:
     if cfg.train.resume:
         return resume(cfg)
-    build_aids(cfg.agent.aids)  # a bad aid stops here, before a run exists
+    # A bad add-on stops here, before a run exists.
+    build_addons(cfg.agent.aids)
+    build_addons(cfg.train.callbacks, "train.callbacks")
     gains, tags = controller_gains_for(cfg)
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
     with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
@@ -179,7 +178,7 @@ def _learn(
     state: dict[str, Any],
 ) -> dict[str, float]:
     agent, tr = cfg.agent, cfg.train
-    aids = build_aids(agent.aids)
+    addons = [*build_addons(agent.aids), *build_addons(tr.callbacks, "train.callbacks")]
     if tr.torch_threads:
         torch.set_num_threads(int(tr.torch_threads))
     settings = settings_from_config(cfg, gains=gains)
@@ -217,15 +216,11 @@ def _learn(
     # Inside the wall-time budget: `stats` started its clock above.
     context = TrainingContext(
         model, settings, int(cfg.seed), resumed=model_path is not None,
-        budget_used=lambda: budget.used(model.num_timesteps), wall=stats.wall,
+        budget_used=lambda: budget.used(model.num_timesteps), wall=stats.wall, run_id=run_id,
+        stats=stats,
     )  # fmt: skip
-    for aid in aids:
-        callbacks += aid.setup(context)
-    if tr.eval_every:
-        probe = ReachEnv(settings)
-        rng = np.random.default_rng(int(tr.eval_seed))
-        targets = [probe.workspace.sample(rng) for _ in range(int(tr.eval_targets))]
-        callbacks.append(HeldOutEval(run_id, int(tr.eval_every), probe, targets, stats))
+    for addon in addons:
+        callbacks += addon.setup(context)
     if tr.progress:
         callbacks.append(Progress(total, stats, initial=done_steps))
     started = time.perf_counter()
@@ -247,8 +242,8 @@ def _learn(
     stats.flush()
     checkpoint.save()
     kept: dict[str, float] = {}
-    for aid in aids:
-        kept.update(aid.finish(context))
+    for addon in addons:
+        kept.update(addon.finish(context))
     log_model(model, MODEL_DIR, snapshot())
     steps = int(model.num_timesteps)
     summary = {

@@ -7,8 +7,8 @@ they apply, as ``callbacks:`` lists do in lightning-hydra-template::
       demonstrations: {_target_: armexp.agents.demonstrations.PlannerDemonstrations, episodes: 1000}
       cloning: {_target_: armexp.agents.cloning.BehaviourCloning, weight: 3.0}
 
-Each aid gets the model and the environment's settings before training (`TrainingAid.setup`,
-which may return SB3 callbacks) and may change the model after it (`TrainingAid.finish`,
+Each aid gets the model and the environment's settings before training (`TrainingAddOn.setup`,
+which may return SB3 callbacks) and may change the model after it (`TrainingAddOn.finish`,
 which returns ``final/*`` metrics). Aids that use the planner's or the obstacles' knowledge
 make a run *aided* (docs/design.md §7); the report says so for every table built from one.
 """
@@ -41,8 +41,11 @@ class TrainingContext:
     resumed: bool
     #: The share of the training budget spent so far (0 to 1).
     budget_used: Callable[[], float]
-    #: Training wall time so far (s).
+    #: Training wall time so far (s); `stats` keeps it.
     wall: Callable[[], float]
+    #: The train run, and the per-episode statistics that stream to it.
+    run_id: str = ""
+    stats: Any = None
     #: Set by the demonstrations aid: how many planner episodes to plan.
     demo_episodes: int = 0
     #: Set by the cloning aid, for aids that add to what it clones.
@@ -69,13 +72,13 @@ class TrainingContext:
         return self._planned
 
 
-class TrainingAid:
+class TrainingAddOn:
     """One add-on to SAC's training (see the module doc)."""
 
     #: Uses privileged knowledge (the planner, the obstacles): the run is aided.
     privileged: ClassVar[bool] = False
     #: Aids that must come before this one in ``agent.aids`` (by class).
-    needs: ClassVar[tuple[type[TrainingAid], ...]] = ()
+    needs: ClassVar[tuple[type[TrainingAddOn], ...]] = ()
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         """Before training: change the model or the context; the callbacks to run."""
@@ -86,32 +89,31 @@ class TrainingAid:
         return {}
 
 
-def build_aids(specs: Mapping[str, Any]) -> list[TrainingAid]:
-    """The aids of ``agent.aids``, in order; a bad entry is one `ConfigError` sentence naming
-    its key."""
+def build_addons(specs: Mapping[str, Any], where: str = "agent.aids") -> list[TrainingAddOn]:
+    """The add-ons of ``specs`` (the config at ``where``), in order; a bad entry is one
+    `ConfigError` sentence naming its key."""
     from hydra.utils import instantiate
 
-    aids: list[TrainingAid] = []
+    aids: list[TrainingAddOn] = []
     for name, spec in specs.items():
-        key = f"agent.aids.{name}"
+        key = f"{where}.{name}"
         try:
             aid = instantiate(spec)
         except Exception as exc:
             cause = exc.__cause__ or exc
             raise ConfigError(
                 f"{key} is not allowed: it could not be built ({cause}); give a _target_ that "
-                "names a training aid (armexp.agents.aids.TrainingAid) and its arguments."
+                "names a training add-on (armexp.agents.addons.TrainingAddOn) and its arguments."
             ) from None
-        if not isinstance(aid, TrainingAid):
+        if not isinstance(aid, TrainingAddOn):
             raise ConfigError(
-                f"{key}._target_={spec.get('_target_')} is not allowed: it is not a training aid "
-                "(armexp.agents.aids.TrainingAid)."
+                f"{key}._target_={spec.get('_target_')} is not allowed: it is not a training "
+                "add-on (armexp.agents.addons.TrainingAddOn)."
             )
         for need in aid.needs:
             if not any(isinstance(a, need) for a in aids):
                 raise ConfigError(
-                    f"{key} is not allowed without a {need.__name__} aid listed before it in "
-                    "agent.aids."
+                    f"{key} is not allowed without a {need.__name__} listed before it in {where}."
                 )
         aids.append(aid)
     return aids
