@@ -90,9 +90,6 @@ def main() -> int:
     m, tm = ev.data.metrics, train.data.metrics
     print(f"\ntraining: {tm['final/env_steps']:.0f} steps, {tm['final/episodes']:.0f} episodes, "
           f"{tm['final/wall_s'] / 60:.1f} min")  # fmt: skip
-    if "final/kept_step" in tm:
-        print(f"final model: the check at {tm['final/kept_step']:.0f} steps "
-              f"({tm['final/kept_success']:.2f} held-out success)")  # fmt: skip
     ok = True
     for label in ("adaptive", "pid"):
         rate = m[f"{label}.random.success_rate"]
