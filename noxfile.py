@@ -1,4 +1,4 @@
-"""Developer sessions: ``nox -s tests lint typecheck bench demo``."""
+"""Developer sessions: ``nox -s tests lint typecheck bench demo browser``."""
 
 from __future__ import annotations
 
@@ -54,3 +54,11 @@ def demo(session: nox.Session) -> None:
     session.run("armexp", "tune", "experiment=smoke", "-m", "controller=subsystem_adaptive,pid")
     session.run("armexp", "train", "experiment=smoke")
     session.run("armexp", "eval", "experiment=smoke")
+
+
+@nox.session
+def browser(session: nox.Session) -> None:
+    """A report folder (default runs/report) in headless Chromium: every image loads, every
+    table has rows, screenshot in <folder>/screenshot.png (needs Debian's chromium)."""
+    session.install(*INSTALL)
+    session.run("python", "scripts/check_report.py", *(session.posargs or ["runs/report"]))

@@ -35,6 +35,7 @@ STAGES: dict[str, tuple[str, str]] = {
         "armexp.stages.evaluate",
         "tasks (a)-(d) and held-out targets, proposed controller and PID",
     ),
+    "play": ("armexp.stages.play", "a trained policy on chosen tasks and targets, animated"),
     "report": ("armexp.stages.report", "Tables I-III and Figures 3-6 from stored runs"),
     "pipeline": ("armexp.stages.pipeline", "tune -> train -> eval -> report under one parent run"),
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
@@ -66,6 +67,7 @@ def usage() -> str:
         "  armexp train agent=sac_quick            # gains from the latest tune run",
         "  armexp train controller.gains=paper     # the paper's gains, no tune run needed",
         "  armexp eval tasks.n_random=100",
+        "  armexp play play.targets=[[1.2,0.5]]  # GIF and MP4 of each episode",
         "Outputs: MLflow store runs/mlflow.db (view with `armexp ui`).",
     ]
     return "\n".join(lines)

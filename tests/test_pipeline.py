@@ -17,6 +17,7 @@ SMALL = [
     "tuner.objective.n_scenarios=2",
     "tuner.objective.horizon=0.2",
     *SMALL_TRAIN,
+    "eval.animations=false",  # the renderer has its own tests
     "tasks.n_random=1",
 ]
 

@@ -25,9 +25,16 @@ TINY = {
     "simulate": ["scenario.duration=0.1"],
     "tune": [*TUNE, "tune.progress=false"],
     "train": TRAIN,
-    "eval": [],
+    "eval": ["eval.animations=false"],
     "report": [],
-    "pipeline": [*TUNE, *TRAIN, "tune.progress=false", "pipeline.seeds=[0,1]", "tasks.n_random=2"],
+    "pipeline": [
+        *TUNE,
+        *TRAIN,
+        "tune.progress=false",
+        "pipeline.seeds=[0,1]",
+        "tasks.n_random=2",
+        "eval.animations=false",
+    ],
 }
 
 

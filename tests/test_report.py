@@ -78,6 +78,19 @@ def test_report_has_every_table_and_figure(store: Path, tmp_path: Path) -> None:
     assert "report/tables/table3_performance.md" in names
 
 
+def test_report_shows_the_eval_runs_animations(store: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    assert _report(store, out) == 0
+    index = (out / "index.html").read_text()
+    assert "<h2>Animations</h2>" in index
+    for label in ("adaptive", "pid"):
+        for task in "abcd":
+            gif, mp4 = f"animations/{label}/{task}.gif", f"animations/{label}/{task}.mp4"
+            assert f"<img src='{gif}'" in index and f"<a href='{mp4}'>MP4</a>" in index
+            assert (out / gif).read_bytes().startswith(b"GIF89a")
+            assert (out / mp4).read_bytes()[4:8] == b"ftyp"
+
+
 def test_report_twice_gives_identical_tables(store: Path, tmp_path: Path) -> None:
     assert _report(store, tmp_path / "one") == 0
     assert _report(store, tmp_path / "two") == 0

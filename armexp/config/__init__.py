@@ -159,6 +159,26 @@ def _segment_distance(
     return math.hypot(p[0] - ax - t * dx, p[1] - ay - t * dy)
 
 
+def target_problem(
+    point: tuple[float, float],
+    lengths: Sequence[float],
+    circles: Sequence[tuple[float, float, float]],
+) -> str | None:
+    """Why the arm (base at the origin) cannot have its tip at ``point``: outside its reach, or
+    inside an obstacle circle; None when neither."""
+    reach, inner = sum(lengths), max(0.0, 2 * max(lengths) - sum(lengths))
+    distance = math.hypot(*point)
+    if not inner <= distance <= reach:
+        return (
+            f"it is {distance:.3g} m from the base, outside the arm's reach "
+            f"[{inner:.3g}, {reach:.3g}] m"
+        )
+    for k, (x, y, r) in enumerate(circles):
+        if math.hypot(point[0] - x, point[1] - y) < r:
+            return f"it lies inside obstacles.circles[{k}] (x={x:g}, y={y:g}, r={r:g})"
+    return None
+
+
 def _workspace_checks(cfg: DictConfig) -> None:
     """Targets the arm can reach outside every obstacle, and no obstacle over the arm at its
     start pose (base at the origin, angles summed along the chain)."""
@@ -166,24 +186,16 @@ def _workspace_checks(cfg: DictConfig) -> None:
     if robot is None or obstacles is None or tasks is None:
         return
     lengths = [float(v) for v in robot.lengths]
-    reach, inner = sum(lengths), max(0.0, 2 * max(lengths) - sum(lengths))
     circles = [(float(c.x), float(c.y), float(c.r)) for c in obstacles.circles]
     for i, target in enumerate(tasks.targets):
-        where = f"tasks.targets[{i}]"
         point = (float(target.x), float(target.y))
-        distance = math.hypot(*point)
-        if not inner <= distance <= reach:
+        problem = target_problem(point, lengths, circles)
+        if problem:
             raise ConfigError(
-                f"{where} ({target.name} at x={point[0]:g}, y={point[1]:g}) is not allowed: it is "
-                f"{distance:.3g} m from the base, outside the arm's reach "
-                f"[{inner:.3g}, {reach:.3g}] m."
+                f"tasks.targets[{i}] ({target.name} at x={point[0]:g}, y={point[1]:g}) is not "
+                f"allowed: {problem}."
             )
-        for k, (x, y, r) in enumerate(circles):
-            if math.hypot(point[0] - x, point[1] - y) < r:
-                raise ConfigError(
-                    f"{where} ({target.name} at x={point[0]:g}, y={point[1]:g}) is not allowed: "
-                    f"it lies inside obstacles.circles[{k}] (x={x:g}, y={y:g}, r={r:g})."
-                )
+    _play_checks(cfg, lengths, circles)
     joints, angle = [(0.0, 0.0)], 0.0
     for length, q in zip(lengths, robot.q0, strict=True):
         angle += float(q)
@@ -197,6 +209,39 @@ def _workspace_checks(cfg: DictConfig) -> None:
                     f"link {j + 1} of the arm at its start pose robot.q0="
                     f"{[float(q) for q in robot.q0]}."
                 )
+
+
+def _play_checks(
+    cfg: DictConfig, lengths: list[float], circles: list[tuple[float, float, float]]
+) -> None:
+    """`armexp play`'s tasks name ``tasks.targets``; its extra targets are points [x, y] the arm
+    can reach outside every obstacle."""
+    play = cfg.get("play")
+    if play is None:
+        return
+    if not play.tasks and not play.targets:
+        raise ConfigError(
+            "play.tasks=[] with play.targets=[] is not allowed: give at least one task or target."
+        )
+    names = [str(t.name) for t in cfg.tasks.targets]
+    for task in play.tasks:
+        if str(task) not in names:
+            raise ConfigError(
+                f"play.tasks contains {task}, which is not allowed: the tasks of "
+                f"tasks={cfg.tasks.name} are {', '.join(names) or 'none'}."
+            )
+    for i, target in enumerate(play.targets):
+        value: Any = OmegaConf.to_container(target) if _is_container(target) else target
+        numbers = isinstance(value, list) and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in value
+        )
+        if not numbers or len(value) != 2:
+            raise fail(f"play.targets[{i}]", value, "give a point as [x, y] in metres")
+        point = (float(value[0]), float(value[1]))
+        problem = target_problem(point, lengths, circles)
+        if problem:
+            raise fail(f"play.targets[{i}]", list(point), problem)
 
 
 def _cross_checks(cfg: DictConfig) -> None:

@@ -347,6 +347,28 @@ class EvalStageConfig:
     #: within the first ``convergence_window`` s of that run is reported.
     initial_offset: float = checked(0.05, _pos)
     convergence_window: float = checked(1.0, _pos)
+    #: Each paper task's episode per controller as an animated GIF and MP4 (a few seconds each).
+    animations: bool = True
+
+
+@dataclass
+class PlayStageConfig:
+    """`armexp play`: a train run's policy on chosen tasks and targets, animated."""
+
+    run_name: str | None = None
+    #: The train run whose policy plays (None: the latest FINISHED one that matches, as eval).
+    train_run: str | None = None
+    controller: str = checked("subsystem_adaptive", one_of("subsystem_adaptive", "pid"))
+    #: Gains as `armexp eval` takes them (``eval.adaptive_gains``, ``eval.pid_gains``).
+    adaptive_gains: str = checked("tuned", one_of("tuned", "config"))
+    pid_gains: str = checked("tuned", one_of("tuned", "config"))
+    pid_tune_run: str | None = None
+    #: Names of ``tasks.targets``, then extra targets ``[[x, y], …]`` (m; typed loosely because
+    #: OmegaConf does not turn an int into a float inside a nested list, `validate` checks them).
+    tasks: list[str] = field(default_factory=lambda: ["a", "b", "c", "d"])
+    targets: list[Any] = field(default_factory=list)
+    formats: list[str] = checked(factory=lambda: ["gif", "mp4"], check=each(one_of("gif", "mp4")))
+    deterministic: bool = True
 
 
 @dataclass
@@ -406,6 +428,7 @@ class ArmexpConfig:
     tune: TuneStageConfig = field(default_factory=TuneStageConfig)
     train: TrainStageConfig = field(default_factory=TrainStageConfig)
     eval: EvalStageConfig = field(default_factory=EvalStageConfig)
+    play: PlayStageConfig = field(default_factory=PlayStageConfig)
     report: ReportStageConfig = field(default_factory=ReportStageConfig)
     pipeline: PipelineStageConfig = field(default_factory=PipelineStageConfig)
     ui: UiStageConfig = field(default_factory=UiStageConfig)

@@ -10,6 +10,8 @@ tasks; ``eval.initial_offset`` and ``robot.torque_limit`` params go into the foo
 from __future__ import annotations
 
 import math
+import shutil
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -21,6 +23,9 @@ from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
 from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value
 
 GAINS_TAG = "armexp.adaptive_gains"
+#: What `armexp eval` animates: ``animations/<controller>/<task>.<format>`` artifacts.
+ANIMATIONS_DIR = "animations"
+ANIMATION_FORMATS = ("gif", "mp4")
 TRAIN_RUN_TAG = "armexp.train_run"
 
 
@@ -249,4 +254,28 @@ def headline(episodes: pd.DataFrame) -> dict[str, float]:
         rand = rows[rows.task.str.startswith("random_")]
         out[f"{label}.tasks.success_rate"] = float(tasks.success.mean()) if len(tasks) else math.nan
         out[f"{label}.random.success_rate"] = float(rand.success.mean()) if len(rand) else math.nan
+    return out
+
+
+def animations_of(
+    run_id: str, reader: Reader, folder: Path
+) -> list[tuple[str, str, dict[str, str]]]:
+    """The eval run's animations of the paper tasks, copied into ``folder`` under the same
+    names: (controller, task, {format: path relative to ``folder``}) for each that has a GIF."""
+    source = reader.path(run_id, ANIMATIONS_DIR)
+    if source is None:
+        return []
+    out = []
+    for label in CONTROLLERS:
+        for task in TASKS:
+            files = {}
+            for fmt in ANIMATION_FORMATS:
+                path = source / label / f"{task}.{fmt}"
+                if path.is_file():
+                    relative = f"{ANIMATIONS_DIR}/{label}/{task}.{fmt}"
+                    (folder / relative).parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(path, folder / relative)
+                    files[fmt] = relative
+            if "gif" in files:
+                out.append((label, task, files))
     return out

@@ -135,7 +135,8 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
             "cso_convergence",
             "Cuckoo search: best objective per iteration.",
         )
-    index_page(folder, made, pictures, runs_frame, selection, cfg, ctx.agent)
+    animations = gather.animations_of(primary.info.run_id, reader, folder)
+    index_page(folder, made, pictures, animations, runs_frame, selection, cfg, ctx.agent)
     return gather.headline(episodes)
 
 
@@ -143,6 +144,7 @@ def index_page(
     folder: Path,
     made: list[tables.Table],
     pictures: list[tuple[str, str]],
+    animations: list[tuple[str, str, dict[str, str]]],
     runs_frame: pd.DataFrame,
     selection: Selection,
     cfg: DictConfig,
@@ -159,7 +161,8 @@ def index_page(
         "table{border-collapse:collapse;margin:.5em 0}td,th{border-bottom:1px solid #ccc;"
         "padding:.2em .6em;text-align:left}img{max-width:100%}.note{color:#555;font-size:90%}"
         "code{background:#f4f4f4;padding:.1em .3em}"
-        ".agent{border-left:4px solid #c60;padding:.2em .6em;background:#fff6ec}</style>"
+        ".agent{border-left:4px solid #c60;padding:.2em .6em;background:#fff6ec}"
+        ".animations{display:grid;grid-template-columns:repeat(2,1fr);gap:.5em}</style>"
         "</head><body>",
         "<h1>armexp report</h1>",
         f"<p>Made from {len(selection.evals)} eval run(s): {html.escape(selection.how)}. "
@@ -175,6 +178,7 @@ def index_page(
             "</figcaption></figure>"
             for name, caption in pictures
         ),
+        *_animation_section(animations, selection.evals[0].info.run_id),
         "<h2>Runs used</h2>",
         runs_html,
         "<p>Configs: each run's <code>config.yaml</code> artifact in the MLflow UI "
@@ -184,3 +188,28 @@ def index_page(
         "</body></html>",
     ]
     (folder / "index.html").write_text("\n".join(parts))
+
+
+def _animation_section(animations: list[tuple[str, str, dict[str, str]]], run_id: str) -> list[str]:
+    """The paper tasks as the eval run animated them: the GIFs inline, task by task with the
+    controllers side by side, each with a link to its MP4."""
+    if not animations:
+        return []
+    names = {"adaptive": "proposed", "pid": "PID"}
+    cells = []
+    for label, task, files in sorted(animations, key=lambda a: (a[1], a[0])):
+        caption = f"({task}), {names.get(label, label)}"
+        video = f" (<a href='{files['mp4']}'>MP4</a>)" if "mp4" in files else ""
+        cells.append(
+            f"<figure><img src='{files['gif']}' alt='{html.escape(caption)}'>"
+            f"<figcaption>{html.escape(caption)}{video}</figcaption></figure>"
+        )
+    return [
+        "<h2>Animations</h2>",
+        f"<p>Tasks (a)–(d) as eval run <code>{html.escape(run_id)}</code> ran them, one frame per "
+        "30 ms action: the arm, the obstacles, the target with its reach threshold, the tip's "
+        "trace, and the time and joint torques (red at the torque limit).</p>",
+        "<div class='animations'>",
+        *cells,
+        "</div>",
+    ]

@@ -11,7 +11,9 @@ Logged: per controller and task the metrics of `armexp.agents.rollout.episode_me
 (``<controller>.random.success_rate`` …); every episode as rows of ``episodes.csv``; the 1 kHz
 trajectory of each paper task per controller as ``trajectories/<controller>/<task>.parquet``
 (the simulate stage's columns plus ``target_error``; random targets too with
-``eval.random_trajectories=true``).
+``eval.random_trajectories=true``); with ``eval.animations`` (default) each paper task's episode
+per controller animated as ``animations/<controller>/<task>.gif`` and ``.mp4``
+(`armexp.render.animation`).
 
 Convergence (docs/design.md §8): each paper task is run a second time for
 ``eval.convergence_window`` seconds with the reference started ``eval.initial_offset`` rad from the
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import mlflow
@@ -41,7 +44,9 @@ from armexp.agents.sac import load_sac
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
+from armexp.render.animation import FORMATS
 from armexp.sim.trajectory import trajectory_columns
+from armexp.stages import animate
 
 log = logging.getLogger(__name__)
 
@@ -53,23 +58,25 @@ GAINS_TAG = "armexp.adaptive_gains"
 LABELS = {"subsystem_adaptive": "adaptive", "pid": "pid"}
 
 
-def _train_run(cfg: DictConfig) -> Any:
+def _train_run(cfg: DictConfig, section: str = "eval") -> Any:
     return tracking.find_stage_run(
         cfg,
         "train",
-        run_id=cfg.eval.train_run,
+        run_id=cfg[section].train_run,
         # The circles too: a run with overridden circles keeps its obstacle set's name.
         match={
             "robot.name": str(cfg.robot.name),
             "obstacles.name": str(cfg.obstacles.name),
             "obstacles.circles": tracking.flatten(cfg)["obstacles.circles"],
         },
-        key="eval.train_run",
+        key=f"{section}.train_run",
     )
 
 
-def _pid_gains(cfg: DictConfig, train_cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
-    if cfg.eval.pid_gains == "config":
+def _pid_gains(
+    cfg: DictConfig, train_cfg: DictConfig, section: str = "eval"
+) -> tuple[dict[str, Any], dict[str, str]]:
+    if cfg[section].pid_gains == "config":
         from armexp.config import compose_config
 
         robot = str(train_cfg.robot.name)
@@ -78,10 +85,72 @@ def _pid_gains(cfg: DictConfig, train_cfg: DictConfig) -> tuple[dict[str, Any], 
         assert isinstance(gains, dict)
         return {str(k): v for k, v in gains.items()}, {}
     run, gains = tracking.tuned_gains(
-        train_cfg, cfg.eval.pid_tune_run, key="eval.pid_tune_run", controller="pid"
+        train_cfg, cfg[section].pid_tune_run, key=f"{section}.pid_tune_run", controller="pid"
     )
-    print(f"eval: PID gains from tune run {run.info.run_id}")
+    print(f"{section}: PID gains from tune run {run.info.run_id}")
     return gains, {PID_TUNE_RUN_TAG: run.info.run_id}
+
+
+@dataclass
+class Policy:
+    """A train run's policy, the config it was trained with (its environment; the episode
+    targets are the caller's ``tasks``), the gains of each controller it runs with, and the
+    lineage tags of the run that uses it."""
+
+    train_id: str
+    train_cfg: DictConfig
+    model: Any
+    gains: dict[str, dict[str, Any]]
+    tags: dict[str, str]
+
+
+def load_policy(cfg: DictConfig, section: str, controllers: list[str], key: str) -> Policy:
+    """The policy of ``<section>.train_run`` (or the latest matching train run) with the gains of
+    ``controllers``: the adaptive ones per ``<section>.adaptive_gains``, the PID's per
+    ``<section>.pid_gains`` / ``<section>.pid_tune_run``. ``key`` names the config key that
+    chose the controllers."""
+    stage = cfg[section]
+    train_run = _train_run(cfg, section)
+    train_id = train_run.info.run_id
+    print(f"{section}: policy of train run {train_id}")
+    train_cfg = OmegaConf.load(tracking.download_artifact(train_id, "config.yaml", cfg))
+    assert isinstance(train_cfg, DictConfig)
+    # The episode targets are this run's choice; the environment is the policy's.
+    train_cfg.tasks = cfg.tasks
+    trained_with = str(train_cfg.controller.name)
+    adaptive_gains: Any
+    if stage.adaptive_gains == "config":
+        if str(cfg.controller.name) != trained_with:
+            raise ConfigError(
+                f"{section}.adaptive_gains=config is not allowed with "
+                f"controller={cfg.controller.name}: the policy was trained with {trained_with}; "
+                f"compose controller={trained_with}."
+            )
+        adaptive_gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
+        print(f"{section}: {trained_with} gains from the config (controller.gains)")
+    else:
+        adaptive_gains = yaml.safe_load(
+            tracking.download_artifact(train_id, "gains.yaml", cfg).read_text()
+        )
+    unknown = [c for c in controllers if c not in LABELS]
+    if unknown:
+        raise ConfigError(f"{key}={controllers} is not allowed: choose from {sorted(LABELS)}.")
+    gains: dict[str, dict[str, Any]] = {trained_with: adaptive_gains}
+    tags = {TRAIN_RUN_TAG: train_id, GAINS_TAG: str(stage.adaptive_gains)}
+    if stage.adaptive_gains == "tuned" and train_run.data.tags.get("armexp.tune_run"):
+        tags["armexp.tune_run"] = train_run.data.tags["armexp.tune_run"]
+    for name in controllers:
+        if name not in gains:
+            if name != "pid":
+                raise ConfigError(
+                    f"{key} contains {name}, but the policy was trained with "
+                    f"{trained_with} and only pid can be added as a baseline."
+                )
+            gains[name], pid_tags = _pid_gains(cfg, train_cfg, section)
+            tags.update(pid_tags)
+    model_path = tracking.download_artifact(train_id, f"{MODEL_DIR}/{MODEL_FILE}", cfg)
+    model = load_sac(str(model_path), None, train_cfg.agent)
+    return Policy(train_id, train_cfg, model, {c: gains[c] for c in controllers}, tags)
 
 
 def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]:
@@ -96,48 +165,9 @@ def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]
 
 
 def run(cfg: DictConfig) -> tracking.StageResult:
-    train_run = _train_run(cfg)
-    train_id = train_run.info.run_id
-    print(f"eval: policy of train run {train_id}")
-    train_cfg = OmegaConf.load(tracking.download_artifact(train_id, "config.yaml", cfg))
-    assert isinstance(train_cfg, DictConfig)
-    # The episode targets are this run's choice; the environment is the policy's.
-    train_cfg.tasks = cfg.tasks
-    trained_with = str(train_cfg.controller.name)
-    adaptive_gains: Any
-    if cfg.eval.adaptive_gains == "config":
-        if str(cfg.controller.name) != trained_with:
-            raise ConfigError(
-                f"eval.adaptive_gains=config is not allowed with controller={cfg.controller.name}: "
-                f"the policy was trained with {trained_with}; compose controller={trained_with}."
-            )
-        adaptive_gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
-        print(f"eval: {trained_with} gains from the config (controller.gains)")
-    else:
-        adaptive_gains = yaml.safe_load(
-            tracking.download_artifact(train_id, "gains.yaml", cfg).read_text()
-        )
     controllers = [str(c) for c in cfg.eval.controllers]
-    unknown = [c for c in controllers if c not in LABELS]
-    if unknown:
-        raise ConfigError(
-            f"eval.controllers={controllers} is not allowed: choose from {sorted(LABELS)}."
-        )
-    gains: dict[str, dict[str, Any]] = {trained_with: adaptive_gains}
-    tags = {TRAIN_RUN_TAG: train_id, GAINS_TAG: str(cfg.eval.adaptive_gains)}
-    if cfg.eval.adaptive_gains == "tuned" and train_run.data.tags.get("armexp.tune_run"):
-        tags["armexp.tune_run"] = train_run.data.tags["armexp.tune_run"]
-    for name in controllers:
-        if name not in gains:
-            if name != "pid":
-                raise ConfigError(
-                    f"eval.controllers contains {name}, but the policy was trained with "
-                    f"{trained_with} and only pid can be added as a baseline."
-                )
-            gains[name], pid_tags = _pid_gains(cfg, train_cfg)
-            tags.update(pid_tags)
-    model_path = tracking.download_artifact(train_id, f"{MODEL_DIR}/{MODEL_FILE}", cfg)
-    policy = load_sac(str(model_path), None, train_cfg.agent)
+    loaded = load_policy(cfg, "eval", controllers, "eval.controllers")
+    train_cfg, policy, gains, tags = loaded.train_cfg, loaded.model, loaded.gains, loaded.tags
 
     with tracking.stage_run(cfg, "eval", run_name=cfg.eval.run_name, extra_tags=tags) as active:
         for name in controllers:
@@ -183,6 +213,10 @@ def run(cfg: DictConfig) -> tracking.StageResult:
                             episode.rows, columns=[*trajectory_columns(n), "target_error"]
                         )
                         tracking.log_dataframe(frame, f"{task}.parquet", f"trajectories/{label}")
+                    if cfg.eval.animations and not task.startswith("random_"):
+                        what = animate.describe(task, episode.target)
+                        still = animate.scene(env, label, what, episode.target, episode.reason)
+                        animate.log_animation(frame, still, label, task, FORMATS)
                 table = pd.DataFrame([r for r in records if r["controller"] == label])
                 summary.update(_aggregate(label, table))
         except BaseException:

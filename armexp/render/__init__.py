@@ -1,0 +1,1 @@
+"""Pictures of stored episodes that need no simulation, environment or agent code."""
