@@ -43,20 +43,24 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-every", type=int, default=40_000, help="steps between checks")
     parser.add_argument(
+        "--eval-only", action="store_true", help="evaluate the store's latest train run again"
+    )
+    parser.add_argument(
         "overrides",
         nargs="*",
         help="extra Hydra overrides for the train stage, e.g. agent.gamma=0.995",
     )
     args = parser.parse_args()
     where = f"tracking.runs_dir={args.runs_dir}"
-    for controller in ("subsystem_adaptive", "pid"):
+    for controller in ("subsystem_adaptive", "pid") if not args.eval_only else ():
         if armexp(["tune", f"controller={controller}", "tune.progress=false", where]) != 0:
             return 1
-    rc = armexp(["train", "experiment=quick", f"agent.max_minutes={args.minutes}",
-                 f"train.eval_every={args.eval_every}", f"seed={args.seed}",
-                 "train.progress=false", where, *args.overrides])  # fmt: skip
-    if rc != 0:
-        return rc
+    if not args.eval_only:
+        rc = armexp(["train", "experiment=quick", f"agent.max_minutes={args.minutes}",
+                     f"train.eval_every={args.eval_every}", f"seed={args.seed}",
+                     "train.progress=false", where, *args.overrides])  # fmt: skip
+        if rc != 0:
+            return rc
     if armexp(["eval", "tasks.n_random=100", where]) != 0:
         return 1
 
