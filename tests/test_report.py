@@ -66,6 +66,13 @@ def test_report_has_every_table_and_figure(store: Path, tmp_path: Path) -> None:
         "tags.`armexp.stage` = 'eval'",
     )
     assert ev.info.run_id in index and "armexp report" in index
+    # The page opens with what ran and how it did, linked to the runs in the MLflow UI.
+    glance = index.split("<h2>At a glance</h2>", 1)[1].split("</ul>", 1)[0]
+    ui = "http://127.0.0.1:5000/#/experiments"
+    assert f"{ui}/{ev.info.experiment_id}/runs/{ev.info.run_id}" in glance
+    assert "held-out success" in glance and "convergence claim <i>" in glance
+    assert "Gains tuned by cuckoo search in: pid (" in glance
+    assert index.index("At a glance") < index.index("<h2>Tables</h2>")
     # The report run carries the folder as an artifact.
     (rep,) = client.search_runs(
         [ev.info.experiment_id],

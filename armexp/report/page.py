@@ -154,7 +154,14 @@ def index_page(
     command = f"armexp report report.eval_runs=[{ids}] tracking.runs_dir={cfg.tracking.runs_dir}"
     if cfg.tracking.uri:
         command += f" tracking.uri={cfg.tracking.uri}"
-    runs_html = runs_frame.to_html(index=False, escape=True, border=0)
+    ui = ui_base(cfg)
+    linked = runs_frame.assign(
+        run_id=[
+            f"<a href='{_run_link(ui, run)}'>{html.escape(run.info.run_id)}</a>"
+            for run in _by_id(selection, list(runs_frame.run_id))
+        ]
+    )
+    runs_html = linked.to_html(index=False, escape=False, border=0)
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'><title>armexp report</title>",
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}"
@@ -165,8 +172,7 @@ def index_page(
         ".animations{display:grid;grid-template-columns:repeat(2,1fr);gap:.5em}</style>"
         "</head><body>",
         "<h1>armexp report</h1>",
-        f"<p>Made from {len(selection.evals)} eval run(s): {html.escape(selection.how)}. "
-        "Every number below was read from the MLflow store; nothing was re-simulated.</p>",
+        *_glance(made[0] if made and made[0].name == "summary" else None, selection, cfg),
         f"<p class='agent'>{html.escape(agent)}</p>",
         "<h2>Tables</h2>",
         "<p>Each table is also in <code>tables/</code> as Markdown, LaTeX (booktabs) and CSV.</p>",
@@ -181,8 +187,9 @@ def index_page(
         *_animation_section(animations, selection.evals[0].info.run_id),
         "<h2>Runs used</h2>",
         runs_html,
-        "<p>Configs: each run's <code>config.yaml</code> artifact in the MLflow UI "
-        "(<code>armexp ui</code>).</p>",
+        f"<p>Run ids link to the MLflow UI at <code>{html.escape(ui)}</code> (start it with "
+        "<code>armexp ui</code>); each run's <code>config.yaml</code> artifact is its resolved "
+        "config.</p>",
         "<h2>Regenerate</h2>",
         f"<pre>{html.escape(command)}</pre>",
         "</body></html>",
@@ -213,3 +220,55 @@ def _animation_section(animations: list[tuple[str, str, dict[str, str]]], run_id
         *cells,
         "</div>",
     ]
+
+
+def ui_base(cfg: DictConfig) -> str:
+    """Where the MLflow UI for this store is: the tracking server itself, or `armexp ui`'s
+    address for a local store."""
+    uri = str(cfg.tracking.uri or "")
+    if uri.startswith(("http://", "https://")):
+        return uri.rstrip("/")
+    return f"http://{cfg.ui.host}:{cfg.ui.port}"
+
+
+def _run_link(base: str, run: Any) -> str:
+    return f"{base}/#/experiments/{run.info.experiment_id}/runs/{run.info.run_id}"
+
+
+def _by_id(selection: Selection, ids: list[str]) -> list[Any]:
+    runs = {r.info.run_id: r for r in selection.all_runs}
+    return [runs[i] for i in ids]
+
+
+def _glance(summary_table: tables.Table | None, selection: Selection, cfg: DictConfig) -> list[str]:
+    """The page's opening: what ran (runs, seeds, agents, gains), held-out success and the
+    claim check's verdicts per agent, with links to the eval runs in the MLflow UI."""
+    ui = ui_base(cfg)
+    seeds = sorted({r.data.params.get("seed", "?") for r in selection.evals}, key=str)
+    links = ", ".join(
+        f"<a href='{_run_link(ui, r)}'>{html.escape(r.info.run_id[:8])}</a>"
+        for r in selection.evals
+    )
+    items = [
+        f"<li>What ran: {len(selection.evals)} eval run(s) ({links}), seed(s) "
+        f"{html.escape(', '.join(seeds))}; {html.escape(selection.how)}. Every number below was "
+        "read from the MLflow store; nothing was re-simulated.</li>"
+    ]
+    tuned = sorted((r.data.params.get("controller.name", "?"), r) for r in selection.tunes.values())
+    if tuned:
+        gains = ", ".join(
+            f"{html.escape(name)} (<a href='{_run_link(ui, r)}'>{r.info.run_id[:8]}</a>)"
+            for name, r in tuned
+        )
+        items.append(f"<li>Gains tuned by cuckoo search in: {gains}.</li>")
+    if summary_table is not None:
+        for row in summary_table.shown.to_dict("records"):
+            items.append(
+                f"<li><b>{html.escape(str(row['Agent']))}</b>: held-out success "
+                f"{html.escape(str(row['Held-out success, proposed']))} with the proposed "
+                f"control, {html.escape(str(row['Held-out success, PID']))} with PID; paper "
+                f"tasks reached {html.escape(str(row['Paper tasks reached']))}; convergence claim "
+                f"<i>{html.escape(str(row['verdict (≈ 10 %)']))}</i>, accuracy claim "
+                f"<i>{html.escape(str(row['verdict (≈ 18 %)']))}</i>.</li>"
+            )
+    return ["<h2>At a glance</h2>", "<ul class='glance'>", *items, "</ul>"]
