@@ -286,7 +286,8 @@ class SimulateStageConfig:
 @dataclass
 class TuneStageConfig:
     run_name: str | None = None
-    progress: bool = True
+    #: A progress bar over iterations: true, false, or null (when stderr is a terminal).
+    progress: bool | None = None
     log_history_every: int = checked(1, at_least(1))
 
 
@@ -307,7 +308,8 @@ class TrainStageConfig:
     eval_every: int = checked(0, at_least(0))
     eval_targets: int = checked(50, at_least(1))
     eval_seed: int = checked(10_007, at_least(0))
-    progress: bool = True
+    #: A progress bar over environment steps: true, false, or null (when stderr is a terminal).
+    progress: bool | None = None
     #: Torch threads of the training process (null: torch's default, one per core). One by
     #: default, so that jobs sharing a machine do not slow each other down
     #: (benchmarks/contention.py).
@@ -336,6 +338,8 @@ class EvalStageConfig:
     #: within the first ``convergence_window`` s of that run is reported.
     initial_offset: float = checked(0.05, _pos)
     convergence_window: float = checked(1.0, _pos)
+    #: A progress bar over episodes: true, false, or null (when stderr is a terminal).
+    progress: bool | None = None
 
 
 @dataclass
