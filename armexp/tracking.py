@@ -295,10 +295,11 @@ def stage_run(
         run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
         mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})
     else:
+        name = run_name or run_names.run_name(cfg, stage, tags)
         run = retry(
             lambda: mlflow.start_run(
                 experiment_id=experiment_id,
-                run_name=run_name or run_names.run_name(cfg, stage, tags),
+                run_name=name,
                 tags=tags,
                 nested=bool(parent_run_id),
             )
