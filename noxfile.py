@@ -48,15 +48,6 @@ def competence(session: nox.Session) -> None:
 
 
 @nox.session
-def demo(session: nox.Session) -> None:
-    """Small end-to-end run into ./runs: tune both controllers, train, evaluate."""
-    session.install(*INSTALL)
-    session.run("armexp", "tune", "experiment=smoke", "-m", "controller=subsystem_adaptive,pid")
-    session.run("armexp", "train", "experiment=smoke")
-    session.run("armexp", "eval", "experiment=smoke")
-
-
-@nox.session
 def browser(session: nox.Session) -> None:
     """A report folder (default runs/report) in headless Chromium: every image loads, every
     table has rows, screenshot in <folder>/screenshot.png (needs Debian's chromium)."""

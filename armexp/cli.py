@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from armexp.console import quiet_warnings
+
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
@@ -222,6 +224,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     def job(cfg: Any) -> Any:
         from armexp.config import validate as check
 
+        quiet_warnings()  # again here: a sweep's jobs may run in worker processes
         try:
             check(cfg)
         except ConfigError as exc:
@@ -302,6 +305,7 @@ def _terminate_as_interrupt() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("HYDRA_FULL_ERROR", "0")
+    quiet_warnings()
     if not args or args[0] in ("-h", "--help", "help"):
         print(usage())
         return 0

@@ -43,6 +43,21 @@ def sweep_combinations(overrides: Sequence[str]) -> list[list[str]]:
     return [list(job) for job in itertools.product(*axes)]
 
 
+def swept_keys(overrides: Sequence[str]) -> set[str]:
+    """The keys a sweep varies (``tuner.pa`` of ``tuner.pa=0.1,0.25``); an override that does
+    not parse on its own is skipped."""
+    parser = OverridesParser.create()
+    keys = set()
+    for text in overrides:
+        try:
+            (override,) = parser.parse_overrides([text])
+        except HydraException:
+            continue
+        if override.is_sweep_override() and not override.is_hydra_override():
+            keys.add(override.get_key_element().lstrip("+~"))
+    return keys
+
+
 def fixed_overrides(overrides: Sequence[str]) -> list[str]:
     """The overrides every job of a sweep shares."""
     return [str(o.input_line) for o in _ours(overrides) if not o.is_sweep_override()]

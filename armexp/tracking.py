@@ -35,12 +35,8 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from armexp import liveness, store
+from armexp import liveness, run_names, store
 from armexp.config import ConfigError
-
-# Stages download small artifacts often (configs, gains, models): MLflow's per-download progress
-# bars would fill the terminal. A user's own setting wins.
-os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 
 STAGE_TAG = "armexp.stage"
 COMMIT_TAG = "armexp.git_commit"
@@ -48,6 +44,9 @@ ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
 INPUTS_TAG = "armexp.inputs_hash"
 PARENT_TAG = "mlflow.parentRunId"
+#: MLflow's experiment kind: the UIs that read it open a "Machine learning" experiment on its runs
+#: table, not on the GenAI overview of traces, which armexp never logs.
+KIND_TAG, KIND = "mlflow.experimentKind", "custom_model_development"
 #: The config a stage's result depends on; `inputs_hash` of these is tagged on every run, and
 #: ``pipeline.reuse`` reuses a FINISHED run with the same hash instead of running the stage again.
 STAGE_INPUTS: dict[str, tuple[str, ...]] = {
@@ -127,9 +126,15 @@ def setup(cfg: DictConfig) -> str:
     def get_or_create() -> str:
         exp = client.get_experiment_by_name(name)
         if exp is not None:
+            if KIND_TAG not in exp.tags:  # made by an older armexp or by hand; a user's kind stays
+                client.set_experiment_tag(exp.experiment_id, KIND_TAG, KIND)
             return str(exp.experiment_id)
         try:
-            return str(client.create_experiment(name, artifact_location=artifact_root(cfg)))
+            return str(
+                client.create_experiment(
+                    name, artifact_location=artifact_root(cfg), tags={KIND_TAG: KIND}
+                )
+            )
         except MlflowException:
             # Another job created it between our look-up and create.
             exp = client.get_experiment_by_name(name)
@@ -263,7 +268,8 @@ def stage_run(
 ) -> Iterator[mlflow.ActiveRun]:
     """One MLflow run for one stage execution, ended FINISHED / FAILED / KILLED truthfully.
 
-    ``resume_run_id`` reopens an existing run (its params and config stay as first logged).
+    ``run_name`` None: `armexp.run_names.run_name` names it. ``resume_run_id`` reopens an existing
+    run (its name, params and config stay as first logged).
     """
     experiment_id = setup(cfg)
     tags = {
@@ -289,10 +295,11 @@ def stage_run(
         run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
         mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})
     else:
+        name = run_name or run_names.run_name(cfg, stage, tags)
         run = retry(
             lambda: mlflow.start_run(
                 experiment_id=experiment_id,
-                run_name=run_name,
+                run_name=name,
                 tags=tags,
                 nested=bool(parent_run_id),
             )
@@ -461,17 +468,6 @@ def download_artifact(run_id: str, path: str, cfg: DictConfig) -> Path:
     return Path(
         mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=dst)
     )
-
-
-def ui_command(cfg: DictConfig) -> list[str]:
-    """The `mlflow ui` command line that shows this store."""
-    cmd = ["mlflow", "ui", "--backend-store-uri", store_uri(cfg)]
-    # One worker: one person browsing one store, and Ctrl-C never lands in a worker mid-import.
-    cmd += ["--host", str(cfg.ui.host), "--port", str(cfg.ui.port), "--workers", "1"]
-    root = artifact_root(cfg)
-    if root:
-        cmd += ["--default-artifact-root", root]
-    return cmd
 
 
 def tuned_gains(

@@ -147,11 +147,20 @@ def test_the_ui_commands_serve_the_stores_runs_and_stop_on_ctrl_c(
         else:
             pytest.fail("the UI did not answer within 60 s")
         assert [r["info"]["run_id"] for r in listed] == [sim.info.run_id]
+        # Marked classic ML, the kind MLflow's UI opens on the runs table.
+        query = f"experiments/get?experiment_id={sim.info.experiment_id}"
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/ajax-api/2.0/mlflow/{query}") as res:
+            tags = {t["key"]: t["value"] for t in json.load(res)["experiment"]["tags"]}
+        assert tags["mlflow.experimentKind"] == "custom_model_development"
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     if which == 0:  # MLflow's own line runs 4 workers, which may print their import cut short
         assert "Traceback" not in out, out[-3000:]
+        assert "Warning" not in out, out[-3000:]
+        # The link opens the experiment's runs table in the UI's "Machine learning" view.
+        link = f"/#/experiments/{sim.info.experiment_id}/runs?workflowType=machine_learning"
+        assert f"open http://127.0.0.1:{port}{link}" in out, out[-3000:]
     (after,) = stage_runs(tmp_path / "runs", "simulate")
     assert after.info.status == "FINISHED"
     assert stage_runs(tmp_path / "runs", "ui") == []  # serving the UI is not a run

@@ -18,6 +18,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import KVWriter
 
 from armexp.agents.addons import TrainingAddOn, TrainingContext
+from armexp.console import progress_bar
 from armexp.tracking import log_batch, retry
 
 #: Artifact paths of a train run.
@@ -160,9 +161,7 @@ class Progress(BaseCallback):
         self.bar: Any = None
 
     def _on_training_start(self) -> None:
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=self.total, initial=self.initial, unit="step", desc="train")
+        self.bar = progress_bar(True, self.total, "train", "step", initial=self.initial)
 
     def _on_step(self) -> bool:
         if self.bar is not None and self.n_calls % 200 == 0:

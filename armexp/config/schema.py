@@ -286,7 +286,8 @@ class SimulateStageConfig:
 @dataclass
 class TuneStageConfig:
     run_name: str | None = None
-    progress: bool = True
+    #: A progress bar over iterations: true, false, or null (when stderr is a terminal).
+    progress: bool | None = None
 
 
 @dataclass
@@ -318,7 +319,8 @@ class TrainStageConfig:
             }
         }
     )
-    progress: bool = True
+    #: A progress bar over environment steps: true, false, or null (when stderr is a terminal).
+    progress: bool | None = None
     #: Torch threads of the training process (null: torch's default, one per core). One by
     #: default, so that jobs sharing a machine do not slow each other down
     #: (benchmarks/contention.py).
@@ -349,6 +351,9 @@ class EvalStageConfig:
     convergence_window: float = checked(1.0, _pos)
     #: Each paper task's episode per controller as an animated GIF and MP4 (a few seconds each).
     animations: bool = True
+
+    #: A progress bar over episodes: true, false, or null (when stderr is a terminal).
+    progress: bool | None = None
 
 
 @dataclass

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,7 +38,7 @@ import pandas as pd
 import yaml
 from omegaconf import DictConfig, OmegaConf
 
-from armexp import tracking
+from armexp import console, run_names, tracking
 from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
 from armexp.agents.rollout import Episode, episode_metrics, rollout, settling_time
 from armexp.agents.sac import load_sac
@@ -87,7 +88,6 @@ def _pid_gains(
     run, gains = tracking.tuned_gains(
         train_cfg, cfg[section].pid_tune_run, key=f"{section}.pid_tune_run", controller="pid"
     )
-    print(f"{section}: PID gains from tune run {run.info.run_id}")
     return gains, {PID_TUNE_RUN_TAG: run.info.run_id}
 
 
@@ -112,7 +112,6 @@ def load_policy(cfg: DictConfig, section: str, controllers: list[str], key: str)
     stage = cfg[section]
     train_run = _train_run(cfg, section)
     train_id = train_run.info.run_id
-    print(f"{section}: policy of train run {train_id}")
     train_cfg = OmegaConf.load(tracking.download_artifact(train_id, "config.yaml", cfg))
     assert isinstance(train_cfg, DictConfig)
     # The episode targets are this run's choice; the environment is the policy's.
@@ -127,7 +126,6 @@ def load_policy(cfg: DictConfig, section: str, controllers: list[str], key: str)
                 f"compose controller={trained_with}."
             )
         adaptive_gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
-        print(f"{section}: {trained_with} gains from the config (controller.gains)")
     else:
         adaptive_gains = yaml.safe_load(
             tracking.download_artifact(train_id, "gains.yaml", cfg).read_text()
@@ -139,6 +137,8 @@ def load_policy(cfg: DictConfig, section: str, controllers: list[str], key: str)
     tags = {TRAIN_RUN_TAG: train_id, GAINS_TAG: str(stage.adaptive_gains)}
     if stage.adaptive_gains == "tuned" and train_run.data.tags.get("armexp.tune_run"):
         tags["armexp.tune_run"] = train_run.data.tags["armexp.tune_run"]
+    if train_run.data.tags.get(run_names.AGENT_PRESET_TAG):  # the run is named after the policy
+        tags[run_names.AGENT_PRESET_TAG] = train_run.data.tags[run_names.AGENT_PRESET_TAG]
     for name in controllers:
         if name not in gains:
             if name != "pid":
@@ -176,6 +176,8 @@ def run(cfg: DictConfig) -> tracking.StageResult:
             )
         records = []
         summary: dict[str, float] = {}
+        started = time.perf_counter()
+        bar = None
         try:
             for name in controllers:
                 label = LABELS[name]
@@ -183,7 +185,11 @@ def run(cfg: DictConfig) -> tracking.StageResult:
                 n = env.n
                 lengths = env.settings.plant.arm.lengths_array
                 threshold = env.settings.reach_threshold
-                for index, (task, options) in enumerate(_targets(cfg, env)):
+                targets = _targets(cfg, env)
+                if bar is None:
+                    total = len(controllers) * len(targets)
+                    bar = console.progress_bar(cfg.eval.progress, total, "eval", "episode")
+                for index, (task, options) in enumerate(targets):
                     episode = rollout(
                         env, policy, options, seed=int(cfg.seed) + index,
                         deterministic=bool(cfg.eval.deterministic),
@@ -217,16 +223,21 @@ def run(cfg: DictConfig) -> tracking.StageResult:
                         what = animate.describe(task, episode.target)
                         still = animate.scene(env, label, what, episode.target, episode.reason)
                         animate.log_animation(frame, still, label, task, FORMATS)
+                    if bar is not None:
+                        bar.update(1)
                 table = pd.DataFrame([r for r in records if r["controller"] == label])
                 summary.update(_aggregate(label, table))
         except BaseException:
             if records:  # an interrupted or failed eval keeps the episodes it ran
                 tracking.log_dataframe(pd.DataFrame(records), "episodes.csv")
             raise
+        finally:
+            if bar is not None:
+                bar.close()
         frame = pd.DataFrame(records)
         tracking.log_dataframe(frame, "episodes.csv")
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
-        _print_table(active.info.run_id, frame)
+        _print_summary(active.info.run_id, loaded.train_id, frame, time.perf_counter() - started)
         return tracking.StageResult(active.info.run_id, summary)
 
 
@@ -264,18 +275,22 @@ def _aggregate(label: str, table: pd.DataFrame) -> dict[str, float]:
     return out
 
 
-def _print_table(run_id: str, frame: pd.DataFrame) -> None:
-    print(f"eval: run {run_id}")
+def _print_summary(run_id: str, train_id: str, frame: pd.DataFrame, wall: float) -> None:
+    """One line: per controller, the random targets' success and collision rates and the paper
+    tasks reached (the report and ``episodes.csv`` have every episode)."""
+    parts = [f"eval: run {run_id}", f"policy of train run {train_id[:8]}"]
     for label, rows in frame.groupby("controller", sort=False):
         rand = rows[rows.task.str.startswith("random_")]
         tasks = rows[~rows.task.str.startswith("random_")]
-        line = f"  {label:<8}"
+        text = f"{label}:"
         if len(rand):
-            line += (
-                f" random: success {rand.success.mean():.2f}, collisions "
-                f"{rand.collision.mean():.2f} ({len(rand)} targets)"
+            text += (
+                f" success {rand.success.mean():.2f}, collisions {rand.collision.mean():.2f} "
+                f"on {len(rand)} targets"
             )
-        for _, r in tasks.iterrows():
-            shown = f"{r.target_time:.2f} s" if r.success else r.reason
-            line += f" | ({r.task}) {shown}"
-        print(line)
+        if len(tasks):
+            won = [str(t) for t in tasks.task[tasks.success > 0]]
+            text += f"{',' if len(rand) else ''} tasks reached {len(won)}/{len(tasks)}"
+            text += f" ({', '.join(won)})" if won else ""
+        parts.append(text)
+    print(" | ".join([*parts, f"{wall:.1f} s"]))

@@ -19,7 +19,7 @@ from typing import Any
 import mlflow
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from armexp import tracking
+from armexp import run_names, tracking
 from armexp.config import ConfigError
 
 STUDY_TAG = "armexp.study"
@@ -35,9 +35,8 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     ids: dict[str, str] = {}
     failed: dict[int, str] = {}
     evals: list[str] = []
-    name = cfg.pipeline.run_name or f"study, seeds {','.join(map(str, seeds))}"
     with tracking.stage_run(
-        cfg, "pipeline", run_name=name, extra_tags={STUDY_TAG: ",".join(map(str, seeds))}
+        cfg, "pipeline", extra_tags={STUDY_TAG: ",".join(map(str, seeds))}
     ) as parent:
         parent_id = parent.info.run_id
         for seed in seeds:
@@ -51,7 +50,8 @@ def run(cfg: DictConfig) -> tracking.StageResult:
                 with tracking.parent(parent_id):
                     seed_run = pipeline.run_one(
                         seed_cfg,
-                        run_name=f"seed {seed}",
+                        # A study's own pipeline.run_name names the study, not each seed.
+                        run_name=run_names.describe(seed_cfg, "pipeline"),
                         paper_gains_row=bool(cfg.pipeline.paper_gains_row),
                         report_=False,
                     )

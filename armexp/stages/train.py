@@ -30,7 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
-from armexp import liveness, tracking
+from armexp import console, liveness, tracking
 from armexp.agents.addons import TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
@@ -66,7 +66,6 @@ def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str
         assert isinstance(gains, dict)
         return {str(k): v for k, v in gains.items()}, {GAINS_SOURCE_TAG: "config"}
     run, gains = tracking.tuned_gains(cfg, cfg.train.tune_run, key="train.tune_run")
-    print(f"train: gains from tune run {run.info.run_id}")
     return gains, {GAINS_SOURCE_TAG: "tune", TUNE_RUN_TAG: run.info.run_id}
 
 
@@ -98,7 +97,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
     with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
-        summary = _learn(cfg, gains, active.info.run_id, model_path=None, state={})
+        summary = _learn(cfg, gains, active.info.run_id, None, {}, _gains_from(tags))
         return tracking.StageResult(active.info.run_id, summary)
 
 
@@ -142,7 +141,8 @@ def resume(cfg: DictConfig, check_overrides: bool = True) -> tracking.StageResul
         if tracking.ERROR_TAG in found.data.tags:
             # The interruption that stopped it is over: the run ends with its own new status.
             tracking.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, tracking.ERROR_TAG))
-        summary = _learn(original, gains, run_id, model_path=str(model_path), state=state)
+        origin = _gains_from(found.data.tags)
+        summary = _learn(original, gains, run_id, str(model_path), state, origin)
         return tracking.StageResult(run_id, summary)
 
 
@@ -170,12 +170,20 @@ def _apply_resume_overrides(original: DictConfig, cfg: DictConfig, run_id: str) 
             OmegaConf.update(original, key, OmegaConf.select(cfg, key))
 
 
+def _gains_from(tags: dict[str, str]) -> str:
+    """Where the controller's gains came from, for the summary line."""
+    if tags.get(GAINS_SOURCE_TAG) == "config":
+        return "gains from the config"
+    return f"gains of tune run {tags.get(TUNE_RUN_TAG, '?')[:8]}"
+
+
 def _learn(
     cfg: DictConfig,
     gains: dict[str, Any],
     run_id: str,
     model_path: str | None,
     state: dict[str, Any],
+    gains_from: str,
 ) -> dict[str, float]:
     agent, tr = cfg.agent, cfg.train
     addons = [*build_addons(agent.aids), *build_addons(tr.callbacks, "train.callbacks")]
@@ -221,7 +229,7 @@ def _learn(
     )  # fmt: skip
     for addon in addons:
         callbacks += addon.setup(context)
-    if tr.progress:
+    if console.shows_progress(tr.progress):
         callbacks.append(Progress(total, stats, initial=done_steps))
     started = time.perf_counter()
     try:
@@ -258,7 +266,7 @@ def _learn(
     mlflow.log_metrics(summary)
     mlflow.set_tag("armexp.stop_reason", budget.reason or "steps")
     print(
-        f"train: run {run_id} | {steps} steps, {stats.episodes} episodes in "
+        f"train: run {run_id} | {gains_from} | {steps} steps, {stats.episodes} episodes, "
         f"{stats.wall():.0f} s | success (last 100) {stats.success_rate:.2f}, collisions "
         f"{stats.collision_rate:.2f} | stopped on {budget.reason or 'steps'}"
     )

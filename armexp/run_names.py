@@ -1,0 +1,99 @@
+"""Run names that say what a run is, so a sweep's runs read at a glance in the MLflow UI.
+
+``<stage>-<subject>-s<seed>``: ``simulate-pid-switching-s3`` (controller, scenario, seed),
+``tune-pid-s0`` (controller, ``tuner.seed``), ``train-sac_quick-s0`` and ``eval-sac_quick-s0``
+(the policy's agent preset, seed), ``report``, ``pipeline-s0``, a study's ``study-s0-4``. A job of
+a sweep adds the swept values the name does not already show (``tune-pid-s0-tuner.pa=0.1``).
+The user's ``<stage>.run_name`` wins.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping, Sequence
+
+from omegaconf import DictConfig, OmegaConf
+
+#: The tag with the agent config group option a policy was trained with (train and eval runs).
+AGENT_PRESET_TAG = "armexp.agent_preset"
+#: Config keys each stage's name shows already; a sweep over one of them adds no suffix.
+SHOWN: dict[str, tuple[str, ...]] = {
+    "simulate": ("controller", "controller.name", "scenario", "scenario.kind", "seed"),
+    "tune": ("controller", "controller.name", "tuner.seed"),
+    "train": ("agent", "seed"),
+    "eval": ("seed",),
+    "pipeline": ("seed", "pipeline.seeds"),
+}
+
+
+def run_name(cfg: DictConfig, stage: str, tags: Mapping[str, str] | None = None) -> str:
+    """``<stage>.run_name`` when the user set one, else `describe`."""
+    chosen = OmegaConf.select(cfg, f"{stage}.run_name", default=None)
+    return str(chosen) if chosen else describe(cfg, stage, tags)
+
+
+def describe(cfg: DictConfig, stage: str, tags: Mapping[str, str] | None = None) -> str:
+    """The name of a ``stage`` run of ``cfg``; ``tags`` are the run's (the agent preset)."""
+    study = stage == "pipeline" and bool(cfg.pipeline.seeds)
+    parts = ["study" if study else stage, *_subject(cfg, stage, tags or {})]
+    return "-".join([*parts, *_swept(cfg, stage)])
+
+
+def _subject(cfg: DictConfig, stage: str, tags: Mapping[str, str]) -> list[str]:
+    seed = f"s{cfg.seed}"
+    if stage == "simulate":
+        return [str(cfg.controller.name), str(cfg.scenario.kind), seed]
+    if stage == "tune":
+        return [str(cfg.controller.name), f"s{cfg.tuner.seed}"]
+    if stage in ("train", "eval"):
+        preset = tags.get(AGENT_PRESET_TAG)
+        return [preset, seed] if preset else [seed]
+    if stage == "pipeline":
+        seeds = [int(s) for s in cfg.pipeline.seeds]
+        return [f"s{_span(seeds)}"] if seeds else [seed]
+    return []
+
+
+def _span(seeds: Sequence[int]) -> str:
+    """``0-4`` for consecutive seeds, else ``0,2,5``."""
+    ordered = sorted(seeds)
+    if len(ordered) > 2 and ordered == list(range(ordered[0], ordered[-1] + 1)):
+        return f"{ordered[0]}-{ordered[-1]}"
+    return ",".join(map(str, seeds))
+
+
+def _swept(cfg: DictConfig, stage: str) -> list[str]:
+    """The job's ``key=value`` overrides for the keys its sweep varies, less those the name
+    shows. The swept keys are read from the sweep's run (its ``overrides`` param), so jobs on
+    other processes or machines name themselves alike."""
+    sweep = OmegaConf.select(cfg, "tracking.sweep_run", default=None)
+    if not sweep:
+        return []
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return []
+    from armexp import tracking
+
+    keys = _swept_keys(tracking.store_uri(cfg), str(sweep))
+    shown = SHOWN.get(stage, ())
+    out = []
+    for override in HydraConfig.get().overrides.task:
+        key = override.partition("=")[0].lstrip("+~")
+        if key in keys and key not in shown:
+            out.append(override)
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _swept_keys(uri: str, sweep_run: str) -> frozenset[str]:
+    from mlflow.tracking import MlflowClient
+
+    from armexp import tracking
+    from armexp.sweeps import swept_keys
+
+    try:
+        run = tracking.retry(lambda: MlflowClient(uri).get_run(sweep_run))
+    except Exception:  # the name is a convenience: a sweep run out of reach leaves it plain
+        return frozenset()
+    return frozenset(swept_keys(run.data.params.get("overrides", "").split()))
