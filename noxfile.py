@@ -1,4 +1,4 @@
-"""Developer sessions: ``nox -s tests lint typecheck bench demo browser``."""
+"""Developer sessions: ``nox -s tests lint typecheck bench browser``."""
 
 from __future__ import annotations
 
