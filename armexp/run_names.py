@@ -45,9 +45,10 @@ def _subject(cfg: DictConfig, stage: str, tags: Mapping[str, str]) -> list[str]:
         return [str(cfg.controller.name), str(cfg.scenario.kind), seed]
     if stage == "tune":
         return [str(cfg.controller.name), f"s{cfg.tuner.seed}"]
-    if stage in ("train", "eval"):
+    if stage in ("train", "eval", "play"):
         preset = tags.get(AGENT_PRESET_TAG)
-        return [preset, seed] if preset else [seed]
+        extra = [str(cfg.play.controller)] if stage == "play" else []
+        return [*([preset] if preset else []), *extra, seed]
     if stage == "pipeline":
         seeds = [int(s) for s in cfg.pipeline.seeds]
         return [f"s{_span(seeds)}"] if seeds else [seed]

@@ -56,6 +56,8 @@ def test_play_animates_a_task_and_an_extra_target_in_a_play_run(
     (train,) = stage_runs(store, "train")
     assert run.info.status == "FINISHED"
     assert run.data.tags["armexp.train_run"] == train.info.run_id
+    preset = train.data.tags["armexp.agent_preset"]
+    assert run.info.run_name == f"play-{preset}-subsystem_adaptive-s0"  # what it is, at a glance
     assert line.startswith(f"play: run {run.info.run_id} | adaptive")
     folder = Path(line.rsplit(" in ", 1)[1])
     assert sorted(p.name for p in folder.iterdir()) == [
