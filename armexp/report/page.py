@@ -254,7 +254,10 @@ def _glance(summary_table: tables.Table | None, selection: Selection, cfg: DictC
         f"{html.escape(', '.join(seeds))}; {html.escape(selection.how)}. Every number below was "
         "read from the MLflow store; nothing was re-simulated.</li>"
     ]
-    tuned = sorted((r.data.params.get("controller.name", "?"), r) for r in selection.tunes.values())
+    tuned = sorted(
+        ((r.data.params.get("controller.name", "?"), r) for r in selection.tunes.values()),
+        key=lambda pair: (pair[0], pair[1].info.run_id),
+    )
     if tuned:
         gains = ", ".join(
             f"{html.escape(name)} (<a href='{_run_link(ui, r)}'>{r.info.run_id[:8]}</a>)"
