@@ -249,10 +249,12 @@ def _glance(summary_table: tables.Table | None, selection: Selection, cfg: DictC
         f"<a href='{_run_link(ui, r)}'>{html.escape(r.info.run_id[:8])}</a>"
         for r in selection.evals
     )
+    # An explicit list of eval runs is already the links; other selections say how they chose.
+    how = "" if selection.how.startswith("eval runs ") else f" ({html.escape(selection.how)})"
     items = [
         f"<li>What ran: {len(selection.evals)} eval run(s) ({links}), seed(s) "
-        f"{html.escape(', '.join(seeds))}; {html.escape(selection.how)}. Every number below was "
-        "read from the MLflow store; nothing was re-simulated.</li>"
+        f"{html.escape(', '.join(seeds))}{how}. Every number below was read from the MLflow "
+        "store; nothing was re-simulated.</li>"
     ]
     tuned = sorted(
         ((r.data.params.get("controller.name", "?"), r) for r in selection.tunes.values()),
