@@ -80,3 +80,23 @@ def config_dir_with_my_arm(tmp_path: Path) -> Path:
     text = (config_dir() / "robot" / "two_link_paper.yaml").read_text()
     (extra / "my_arm.yaml").write_text(text.replace("name: two_link_paper", "name: my_arm"))
     return extra.parent
+
+
+def run_without(blocked: list[str], code: str, cwd: Path | None = None) -> Any:
+    """Run ``code`` in a fresh interpreter where importing any of ``blocked`` (packages or
+    modules, with their submodules) fails as if it were not installed. A finder raises, rather
+    than a None entry in sys.modules, because libraries that probe sys.modules trip on that."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        f"        if any(name == b or name.startswith(b + '.') for b in {blocked!r}):\n"
+        "            raise ModuleNotFoundError(name)\n"
+        "sys.meta_path.insert(0, Block())\n" + code
+    )
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          cwd=cwd, env={**os.environ})  # fmt: skip

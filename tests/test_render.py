@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -16,6 +13,7 @@ from PIL import Image
 
 from armexp.render import animation
 from armexp.render.animation import Scene, frame_rows, write
+from tests.helpers import run_without
 
 CIRCLES = ((0.5, 1.3, 0.12), (1.4, 0.3, 0.12))
 SCENE = Scene((1.0, 0.8), CIRCLES, (0.30, 1.55), 0.04, "test")
@@ -102,15 +100,5 @@ def test_an_unknown_format_is_refused(tmp_path: Path) -> None:
 def test_the_renderer_needs_no_simulation_environment_or_agent_code(tmp_path: Path) -> None:
     blocked = ["armexp.sim", "armexp.envs", "armexp.agents", "stable_baselines3", "gymnasium",
                "torch", "numba"]  # fmt: skip
-    script = (
-        "import sys\n"
-        "class Block:\n"
-        "    def find_spec(self, name, path=None, target=None):\n"
-        f"        if any(name == b or name.startswith(b + '.') for b in {blocked!r}):\n"
-        "            raise ModuleNotFoundError(name)\n"
-        "sys.meta_path.insert(0, Block())\n"
-        "import armexp.render.animation\n"
-    )
-    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         env={**os.environ})  # fmt: skip
+    res = run_without(blocked, "import armexp.render.animation\n")
     assert res.returncode == 0, res.stderr[-2000:]

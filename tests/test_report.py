@@ -14,6 +14,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
+from tests.helpers import run_without
 
 FIGURES = (
     "fig3_tip_paths",
@@ -121,25 +122,11 @@ def test_report_runs_without_simulation_environment_or_agent_code(
         "torch",
         "numba",
     ]
-    # A finder that fails those imports, as if the packages were not installed (a None entry
-    # in sys.modules would also hide them, but libraries that probe sys.modules trip on it).
-    script = (
-        "import sys\n"
-        "class Block:\n"
-        "    def find_spec(self, name, path=None, target=None):\n"
-        f"        if any(name == b or name.startswith(b + '.') for b in {blocked!r}):\n"
-        "            raise ModuleNotFoundError(name)\n"
-        "sys.meta_path.insert(0, Block())\n"
+    code = (
         "from armexp.cli import main\n"
         f"sys.exit(main(['report', 'tracking.runs_dir={store}', 'report.out_dir={tmp_path}/r']))\n"
     )
-    res = subprocess.run(
-        [sys.executable, "-c", script],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        env={**os.environ},
-    )
+    res = run_without(blocked, code, cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     assert (tmp_path / "r" / "tables" / "table3_performance.md").exists()
 
@@ -496,7 +483,6 @@ def test_a_failing_report_keeps_the_previous_one(
 
 def test_the_readmes_filter_example_runs_as_written(store: Path, tmp_path: Path) -> None:
     """The README's report.filter line, through a real shell (its quoting is the point)."""
-    import subprocess
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     (line,) = [
@@ -505,8 +491,6 @@ def test_the_readmes_filter_example_runs_as_written(store: Path, tmp_path: Path)
         if line.startswith('armexp report "report.filter=')
     ]
     command = f"{line} tracking.runs_dir={store} report.out_dir={tmp_path / 'r'}"
-    import os
-    import sys
 
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     done = subprocess.run(
