@@ -210,6 +210,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
         if not line.runs_no_job:
             precheck(overrides, line.multirun, _search_path(line))
+            if line.multirun and not line.shows_config:
+                from armexp.launchers import check_launcher
+
+                check_launcher(overrides)
     except ConfigError as exc:
         print(f"armexp {stage}: {exc}", file=sys.stderr)
         return EXIT_USAGE

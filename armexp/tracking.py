@@ -285,6 +285,10 @@ def stage_run(
     parent_run_id = parent_run_id or (_parents[-1] if _parents else None) or sweep
     if parent_run_id:
         tags[PARENT_TAG] = parent_run_id
+    # MLflow's start_run continues the run named by an inherited MLFLOW_RUN_ID instead of
+    # starting one, whatever parent is given (mlflow #15713): a job launched from inside another
+    # run (a Ray or SLURM worker, a notebook) would log into that run.
+    os.environ.pop("MLFLOW_RUN_ID", None)
     if resume_run_id:
         run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
         mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})
