@@ -68,6 +68,7 @@ def usage() -> str:
         "  armexp train controller.gains=paper     # the paper's gains, no tune run needed",
         "  armexp eval tasks.n_random=100",
         "  armexp play play.targets=[[1.2,0.5]]  # GIF and MP4 of each episode",
+        "  armexp diff <run id> <run id>         # config, metrics, code and versions",
         "Outputs: MLflow store runs/mlflow.db (view with `armexp ui`).",
     ]
     return "\n".join(lines)
@@ -310,9 +311,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(usage())
         return 0
     stage, rest = args[0], args[1:]
+    if stage == "diff":  # not a Hydra app: it reads two runs, it runs nothing
+        from armexp import diff
+
+        return diff.main(rest)
     if stage not in STAGES:
         print(
-            f"armexp: stage={stage} is not a known stage; choose one of: {', '.join(STAGES)}.",
+            f"armexp: stage={stage} is not a known stage; choose one of: "
+            f"{', '.join([*STAGES, 'diff'])}.",
             file=sys.stderr,
         )
         return EXIT_USAGE
