@@ -65,6 +65,7 @@ def runs_of(uri: str) -> list[dict[str, Any]]:
         out.append({
             "id": r.info.run_id, "stage": tags.get("armexp.stage"), "status": r.info.status,
             "seed": r.data.params.get("seed"), "artifact_uri": r.info.artifact_uri,
+            "start": r.info.start_time,
             "parent": tags.get("mlflow.parentRunId"), **{k: tags.get(k) for k in TAGS},
             "reused": {k.rpartition(".")[2]: v for k, v in tags.items()
                        if k.startswith("armexp.reused.")},
@@ -147,22 +148,26 @@ SCENARIOS = {"ray": scenario_ray, "submitit": scenario_submitit, "server": scena
 
 
 def summary(name: str, result: dict) -> list[str]:
-    """What ``nox -s scale`` prints for one scenario."""
+    """What ``nox -s scale`` prints for one scenario: per sweep its exit code and wall time,
+    points launched and how they ended (with the reasons of those that did not finish), and
+    how many stage runs were reused instead of run."""
+    runs = result["runs"]
+    sweeps = sorted((r for r in runs if r["stage"] == "sweep"), key=lambda r: r["start"])
     lines = []
-    for i, sweep in enumerate(result["sweeps"]):
-        lines.append(f"{name}: sweep {i + 1} via {result['launcher']}: exit {sweep['rc']}, "
-                     f"{sweep['wall_s']:.1f} s wall")  # fmt: skip
-    jobs = [r for r in result["runs"] if r["stage"] not in ("sweep", None)]
-    top = [r for r in jobs if r["parent"] in {s["id"] for s in result["runs"]
-                                                if s["stage"] == "sweep"}]  # fmt: skip
-    done = sum(r["status"] == "FINISHED" for r in top)
-    lines.append(f"{name}: points launched {len(top)}, FINISHED {done}, stage runs {len(jobs)}")
-    for r in jobs:
-        if r["status"] in ("FAILED", "KILLED"):
-            lines.append(f"{name}:   {r['stage']} seed={r['seed']} {r['status']}: {r['error']}")
-    reused = sum(len(r["reused"]) for r in jobs)
-    if reused:
-        lines.append(f"{name}: stage runs reused on re-run {reused}")
+    for i, (cmd, sweep) in enumerate(zip(result["sweeps"], sweeps, strict=True), 1):
+        points = [r for r in runs if r["parent"] == sweep["id"]]
+        ended = {s: sum(r["status"] == s for r in points) for s in ("FINISHED", "FAILED", "KILLED")}
+        stages = [r for r in runs if r["armexp.sweep"] == sweep["id"]]
+        reused = sum(len(r["reused"]) for r in points)
+        lines.append(
+            f"{name} sweep {i} via {result['launcher']}: exit {cmd['rc']}, {cmd['wall_s']:.1f} s "
+            f"wall | points launched {len(points)}: FINISHED {ended['FINISHED']}, FAILED "
+            f"{ended['FAILED']}, KILLED {ended['KILLED']} | stage runs {len(stages)}, reused "
+            f"{reused}"
+        )
+        for r in stages:
+            if r["status"] in ("FAILED", "KILLED"):
+                lines.append(f"  {r['stage']} seed={r['seed']} {r['status']}: {r['armexp.error']}")
     return lines
 
 

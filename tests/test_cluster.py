@@ -30,7 +30,15 @@ pytestmark = [
 ]
 
 
+NEEDS = {"ray": ("hydra_plugins.hydra_ray_launcher", "psycopg2"),
+         "submitit": ("hydra_plugins.hydra_submitit_launcher",),
+         "server": ("psycopg2",),
+         "fault": ("hydra_plugins.hydra_ray_launcher", "psycopg2")}  # fmt: skip
+
+
 def _scenario(name: str, tmp_path: Path, timeout: float = 1500) -> dict[str, Any]:
+    for module in NEEDS[name]:
+        pytest.importorskip(module, reason='armexp[cluster] is not installed')
     work = tmp_path / name
     path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     env = {**os.environ, "PYTHONPATH": path}
