@@ -38,7 +38,7 @@ NEEDS = {"ray": ("hydra_plugins.hydra_ray_launcher", "psycopg2"),
 
 def _scenario(name: str, tmp_path: Path, timeout: float = 1500) -> dict[str, Any]:
     for module in NEEDS[name]:
-        pytest.importorskip(module, reason='armexp[cluster] is not installed')
+        pytest.importorskip(module, reason="armexp[cluster] is not installed")
     work = tmp_path / name
     path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     env = {**os.environ, "PYTHONPATH": path}
