@@ -15,6 +15,7 @@ import importlib
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -248,6 +249,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             raise SystemExit(1) from None
 
     register_schemas()
+    # Launcher configs named like their plugin's schema (conf/hydra/launcher/ray.yaml) are
+    # validated against it, which is what they are written for; Hydra warns about the match.
+    warnings.filterwarnings("ignore", message=r"(?s).*validated against ConfigStore schema")
     runs_jobs = line.multirun and not line.runs_no_job and not line.shows_config
     sweep = sweeps.open_sweep(stage, overrides, _search_path(line)) if runs_jobs else None
     # `hydra.main` reads its command line from sys.argv only (it has no parameter for one), and

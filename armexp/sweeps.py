@@ -104,4 +104,11 @@ def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
                 client.set_terminated(rid, "KILLED")
 
             tracking.retry(stop)
+        jobs = client.search_runs(
+            [experiment_id], f"tags.`{tracking.PARENT_TAG}` = '{sweep_id}'", max_results=10000
+        )
+        unfinished = sum(r.info.status != "FINISHED" for r in jobs)
+        why = "interrupted" if status == "KILLED" else "a job failed"
+        reason = f"{why}: {unfinished} of its {len(jobs)} jobs did not finish"
+        tracking.retry(lambda: client.set_tag(sweep_id, tracking.ERROR_TAG, reason))
     tracking.retry(lambda: client.set_terminated(sweep_id, status))

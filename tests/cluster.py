@@ -18,6 +18,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.request
 from collections.abc import Iterator, Sequence
@@ -128,26 +129,31 @@ def _as_pg(command: Sequence[str], **kw: object) -> subprocess.CompletedProcess:
 @contextlib.contextmanager
 def postgres(work: Path) -> Iterator[str]:
     """A PostgreSQL server on 127.0.0.1 in a fresh data directory, run as ``postgres`` (it
-    refuses root); yields the SQLAlchemy URI of its database ``mlflow``."""
-    data = work / "pgdata"
-    data.mkdir(parents=True)
+    refuses root); yields the SQLAlchemy URI of its database ``mlflow``. The data directory is
+    made directly under the system's temporary folder: the ``postgres`` user cannot enter
+    pytest's folders (mode 0700, root's)."""
+    data = Path(tempfile.mkdtemp(prefix="armexp-pg-"))
     user = pwd.getpwnam(PG_USER)
     os.chown(data, user.pw_uid, user.pw_gid)
-    os.chmod(work, 0o755)
     port = free_port()
-    _as_pg([_pg_bin("initdb"), "-D", str(data), "-A", "trust", "-U", PG_USER],
-           capture_output=True)  # fmt: skip
-    opts = f"-h 127.0.0.1 -p {port} -k {data}"
-    _as_pg([_pg_bin("pg_ctl"), "-D", str(data), "-o", opts, "-l", str(data / "log"), "-w",
-            "start"], capture_output=True)  # fmt: skip
     try:
-        _as_pg([_pg_bin("createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", PG_USER,
-                "mlflow"], capture_output=True)  # fmt: skip
-        # SQLAlchemy 2.1 takes a bare postgresql:// to mean psycopg 3; the driver here is psycopg2.
-        yield f"postgresql+psycopg2://{PG_USER}@127.0.0.1:{port}/mlflow"
-    finally:
-        _as_pg([_pg_bin("pg_ctl"), "-D", str(data), "-m", "immediate", "-w", "stop"],
+        _as_pg([_pg_bin("initdb"), "-D", str(data), "-A", "trust", "-U", PG_USER],
                capture_output=True)  # fmt: skip
+        opts = f"-h 127.0.0.1 -p {port} -k {data}"
+        _as_pg([_pg_bin("pg_ctl"), "-D", str(data), "-o", opts, "-l", str(data / "log"), "-w",
+                "start"], capture_output=True)  # fmt: skip
+        try:
+            _as_pg([_pg_bin("createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", PG_USER,
+                    "mlflow"], capture_output=True)  # fmt: skip
+            # SQLAlchemy 2.1 reads a bare postgresql:// as psycopg 3; the driver is psycopg2.
+            yield f"postgresql+psycopg2://{PG_USER}@127.0.0.1:{port}/mlflow"
+        finally:
+            _as_pg([_pg_bin("pg_ctl"), "-D", str(data), "-m", "immediate", "-w", "stop"],
+                   capture_output=True)  # fmt: skip
+    finally:
+        with contextlib.suppress(OSError):
+            shutil.copy(data / "log", work / "postgres.log")
+        shutil.rmtree(data, ignore_errors=True)
 
 
 @contextlib.contextmanager

@@ -48,7 +48,7 @@ def armexp(args: list[str], env: dict[str, str] | None = None, timeout: float = 
     res = subprocess.run([sys.executable, "-m", "armexp", *args], capture_output=True, text=True,
                          env={**os.environ, **(env or {})}, timeout=timeout)  # fmt: skip
     return {"args": args, "rc": res.returncode, "wall_s": round(time.time() - start, 1),
-            "out": (res.stdout + res.stderr)[-6000:]}  # fmt: skip
+            "out": res.stdout[-3000:] + res.stderr[-6000:]}  # fmt: skip
 
 
 def runs_of(uri: str) -> list[dict[str, Any]]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import sys
 from pathlib import Path
@@ -106,19 +107,24 @@ def test_a_worker_killed_mid_sweep_is_failed_with_a_reason_and_reuse_completes_i
     first, second = result["sweeps"]
     killed = result["killed"]
     assert killed, "no pipeline run was caught between stages"
-    assert first["rc"] == 1 and "was lost" in first["out"]
+    assert first["rc"] == 1
+    lost = re.findall(r"sweep job #\d \(([^)]*)\) was lost: The worker died", first["out"])
+    assert lost and f"seed={killed['seed']}" in lost[-1].split()
     before = result["runs_after_first"]
     sweep1, points1 = _sweep_points(before, "pipeline")
     assert sweep1["status"] == "FAILED" and len(points1) == 4
+    assert sweep1["armexp.error"] == "a job failed: 1 of its 4 jobs did not finish"
     status = {r["seed"]: r["status"] for r in points1}
     assert status == {s: ("FAILED" if s == killed["seed"] else "FINISHED") for s in "0123"}
     dead = next(r for r in points1 if r["seed"] == killed["seed"])
     assert dead["armexp.error"] == f"process stopped: {dead['armexp.process']} is gone"
     # Nothing stays RUNNING: the killed point's stage runs ended with it, with the reason.
     assert not [r for r in before if r["status"] == "RUNNING"]
-    for run in before:
-        if run["status"] != "FINISHED":
-            assert run["armexp.error"].startswith("process stopped:")
+    stopped = [r for r in before if r["status"] != "FINISHED" and r["stage"] != "sweep"]
+    # The point's pipeline run and the stage it was in (maybe killed before its params were in)
+    assert dead in stopped and len(stopped) >= 2
+    assert all(r["parent"] == dead["id"] for r in stopped if r is not dead)
+    assert all(r["armexp.error"] == dead["armexp.error"] for r in stopped)
     # The re-run: all four points FINISHED, and only the killed point's missing stages ran.
     assert second["rc"] == 0, second["out"]
     runs = result["runs"]

@@ -15,6 +15,7 @@ Ray plugin are imported only when this launcher is set up (``armexp[cluster]``).
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,6 +28,11 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 
 log = logging.getLogger(__name__)
+
+
+class JobLost(RuntimeError):
+    """A sweep job whose Ray worker or node died; Hydra raises it after the sweep's other
+    jobs finished."""
 
 
 class RayLauncher(Launcher):
@@ -81,14 +87,15 @@ class RayLauncher(Launcher):
                 results.append(ray.get(ref))
             except ray.exceptions.RayError as exc:  # the job's worker or node died
                 reason = str(exc).strip().splitlines()[0][:300]
-                print(f"armexp: sweep job #{idx} ({' '.join(overrides)}) was lost: {reason}")
+                lost = JobLost(f"sweep job #{idx} ({' '.join(overrides)}) was lost: {reason}")
+                print(f"armexp: {lost}", file=sys.stderr)
                 results.append(
                     JobReturn(
                         overrides=overrides,
                         cfg=sweep_config,
                         hydra_cfg=sweep_config,
                         status=JobStatus.FAILED,
-                        _return_value=exc,
+                        _return_value=lost,
                     )
                 )
         log.info("Ray ran %d jobs in %.1f s", len(results), time.time() - started)
