@@ -54,10 +54,12 @@ def check_launcher(overrides: Sequence[str]) -> None:
     if name not in PLUGINS:
         return
     module, install = PLUGINS[name]
-    if importlib.util.find_spec("hydra_plugins") is None or not _importable(module):
+    needed = [module, "ray"] if name == "ray" else [module]
+    missing = [m for m in needed if not _importable(m)]
+    if missing:
         raise ConfigError(
-            f"hydra/launcher={name} is not allowed here: its Hydra launcher plugin ({module}) is "
-            f"not installed; {install}."
+            f"hydra/launcher={name} is not allowed here: {' and '.join(missing)} "
+            f"{'is' if len(missing) == 1 else 'are'} not installed; {install}."
         )
     if name == "ray":
         address = _override(overrides, "hydra.launcher.ray.init.address") or "auto"
@@ -74,7 +76,7 @@ def _importable(module: str) -> bool:
 def ray_address(address: str) -> str | None:
     """``host:port`` of the Ray head that ``address`` names (``auto``: ``RAY_ADDRESS`` or the
     cluster `ray start --head` started on this machine); None when there is none to try."""
-    if address in ("auto", "None", "null", ""):
+    if address in ("auto", ""):
         address = os.environ.get("RAY_ADDRESS", "")
         if not address and RAY_CURRENT_CLUSTER.exists():
             address = RAY_CURRENT_CLUSTER.read_text().strip()
@@ -86,8 +88,8 @@ def ray_address(address: str) -> str | None:
 def _probe_ray(address: str) -> None:
     """Ray's own connect retries for about a minute per attempt; a TCP connect to the head's
     port tells within seconds whether anything listens."""
-    if address == "local":
-        return  # a fresh single-machine Ray in this process: nothing to reach
+    if address in ("local", "null", "None"):
+        return  # Ray started inside this process on this machine: nothing to reach
     where = ray_address(address)
     start = "start one with `ray start --head` (README, Scaling out) or correct the address"
     if where is None:
