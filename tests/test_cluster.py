@@ -121,8 +121,9 @@ def test_a_worker_killed_mid_sweep_is_failed_with_a_reason_and_reuse_completes_i
     # Nothing stays RUNNING: the killed point's stage runs ended with it, with the reason.
     assert not [r for r in before if r["status"] == "RUNNING"]
     stopped = [r for r in before if r["status"] != "FINISHED" and r["stage"] != "sweep"]
-    # The point's pipeline run and the stage it was in (maybe killed before its params were in)
-    assert dead in stopped and len(stopped) >= 2
+    # The point's pipeline run, and the stage run it was in when the kill came after that run
+    # was made (maybe before its params were logged)
+    assert dead in stopped and len(stopped) <= 2
     assert all(r["parent"] == dead["id"] for r in stopped if r is not dead)
     assert all(r["armexp.error"] == dead["armexp.error"] for r in stopped)
     # The re-run: all four points FINISHED, and only the killed point's missing stages ran.
