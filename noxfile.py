@@ -1,4 +1,4 @@
-"""Developer sessions: ``nox -s tests lint typecheck bench browser``."""
+"""Developer sessions: ``nox -s tests lint typecheck bench browser scale``."""
 
 from __future__ import annotations
 
@@ -38,6 +38,17 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/cso_quality.py")
     session.run("python", "benchmarks/env_speed.py")
     session.run("python", "benchmarks/report_speed.py")
+
+
+@nox.session
+def scale(session: nox.Session) -> None:
+    """Sweeps on a real Ray cluster, through submitit, against `mlflow server` on PostgreSQL, and
+    a worker SIGKILLed mid-sweep (root: each in a private network namespace; minutes), then the
+    Ray-vs-joblib benchmark. Prints per sweep: points launched, how they ended, reuse, wall time."""
+    session.install("-c", "constraints.txt", "-e", ".[dev,cluster]")
+    session.run("pytest", "-m", "slow", "-s", "-q", "-p", "no:warnings", "tests/test_cluster.py",
+                *session.posargs)  # fmt: skip
+    session.run("python", "benchmarks/ray_vs_joblib.py")
 
 
 @nox.session

@@ -15,6 +15,7 @@ import importlib
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,6 +71,7 @@ def usage() -> str:
         "  armexp train controller.gains=paper     # the paper's gains, no tune run needed",
         "  armexp eval tasks.n_random=100",
         "  armexp play play.targets=[[1.2,0.5]]  # GIF and MP4 of each episode",
+        "  armexp diff <run id> <run id>         # config, metrics, code and versions",
         "Outputs: MLflow store runs/mlflow.db (view with `armexp ui`).",
     ]
     return "\n".join(lines)
@@ -212,6 +214,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
         if not line.runs_no_job:
             precheck(overrides, line.multirun, _search_path(line))
+            if line.multirun and not line.shows_config:
+                from armexp.launchers import check_launcher
+
+                check_launcher(overrides)
     except ConfigError as exc:
         print(f"armexp {stage}: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -246,6 +252,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             raise SystemExit(1) from None
 
     register_schemas()
+    # Launcher configs named like their plugin's schema (conf/hydra/launcher/ray.yaml) are
+    # validated against it, which is what they are written for; Hydra warns about the match.
+    warnings.filterwarnings("ignore", message=r"(?s).*validated against ConfigStore schema")
     runs_jobs = line.multirun and not line.runs_no_job and not line.shows_config
     sweep = sweeps.open_sweep(stage, overrides, _search_path(line)) if runs_jobs else None
     # `hydra.main` reads its command line from sys.argv only (it has no parameter for one), and
@@ -310,9 +319,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(usage())
         return 0
     stage, rest = args[0], args[1:]
+    if stage == "diff":  # not a Hydra app: it reads two runs, it runs nothing
+        from armexp import diff
+
+        return diff.main(rest)
     if stage not in STAGES:
         print(
-            f"armexp: stage={stage} is not a known stage; choose one of: {', '.join(STAGES)}.",
+            f"armexp: stage={stage} is not a known stage; choose one of: "
+            f"{', '.join([*STAGES, 'diff'])}.",
             file=sys.stderr,
         )
         return EXIT_USAGE

@@ -100,9 +100,12 @@ def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
 
     client, sweep_id, _ = sweep
     if status != "FINISHED":
-        # Jobs stopped with the sweep (a worker killed before it could end its run) would stay
-        # RUNNING: they end as the sweep did.
         experiment_id = client.get_run(sweep_id).info.experiment_id
+        if status == "FAILED":
+            # A job whose worker died (SIGKILL, OOM) left its runs RUNNING: FAILED, naming the
+            # process that is gone.
+            tracking.retry(lambda: tracking.close_orphans(client, experiment_id))
+        # Jobs stopped with the sweep (Ctrl-C reaches its workers too) end as the sweep did.
         running = client.search_runs(
             [experiment_id],
             f"tags.`{tracking.SWEEP_TAG}` = '{sweep_id}' and attributes.status = 'RUNNING'",
@@ -116,4 +119,11 @@ def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
                 client.set_terminated(rid, "KILLED")
 
             tracking.retry(stop)
+        jobs = client.search_runs(
+            [experiment_id], f"tags.`{tracking.PARENT_TAG}` = '{sweep_id}'", max_results=10000
+        )
+        unfinished = sum(r.info.status != "FINISHED" for r in jobs)
+        why = "interrupted" if status == "KILLED" else "a job failed"
+        reason = f"{why}: {unfinished} of its {len(jobs)} jobs did not finish"
+        tracking.retry(lambda: client.set_tag(sweep_id, tracking.ERROR_TAG, reason))
     tracking.retry(lambda: client.set_terminated(sweep_id, status))

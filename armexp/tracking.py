@@ -4,7 +4,8 @@ Stages hand data to each other only through MLflow (docs/design.md §1). Every s
 
 * params: the flattened resolved config (``robot.lengths`` → ``[1.0, 0.8]``),
 * artifact ``config.yaml``: the full resolved config,
-* tags: ``armexp.stage``, ``armexp.git_commit`` (when run inside a git checkout), and
+* tags: ``armexp.stage``, what ran (`armexp.lineage`: git commit and dirty flag inside a git
+  checkout, ``armexp.version.<package>``), and
 * a truthful end status: FINISHED, FAILED (with ``armexp.error``) or KILLED (interrupted).
 
 The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
@@ -19,7 +20,6 @@ import json
 import logging
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -35,11 +35,11 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from armexp import liveness, run_names, store
+from armexp import lineage, liveness, run_names, store
 from armexp.config import ConfigError
 
 STAGE_TAG = "armexp.stage"
-COMMIT_TAG = "armexp.git_commit"
+COMMIT_TAG = lineage.COMMIT_TAG
 ERROR_TAG = "armexp.error"
 SWEEP_TAG = "armexp.sweep"
 INPUTS_TAG = "armexp.inputs_hash"
@@ -164,19 +164,6 @@ def flatten(cfg: DictConfig | Mapping[str, Any]) -> dict[str, str]:
     return out
 
 
-def git_commit() -> str | None:
-    for where in (Path.cwd(), Path(__file__).resolve().parent):
-        try:
-            res = subprocess.run(
-                ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=5
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-        if res.returncode == 0:
-            return res.stdout.strip()
-    return None
-
-
 def inputs_hash(cfg: DictConfig, stage: str) -> str | None:
     """A short hash of the config sections the stage's result depends on (None: not tracked)."""
     keys = STAGE_INPUTS.get(stage)
@@ -278,10 +265,7 @@ def stage_run(
         liveness.PROCESS_TAG: liveness.process_identity(),
         **(extra_tags or {}),
     }
-    commit = git_commit()
-    if commit:
-        tags[COMMIT_TAG] = commit
-        tags["mlflow.source.git.commit"] = commit
+    tags.update(lineage.lineage_tags())
     digest = inputs_hash(cfg, stage)
     if digest:
         tags[INPUTS_TAG] = digest
@@ -291,6 +275,10 @@ def stage_run(
     parent_run_id = parent_run_id or (_parents[-1] if _parents else None) or sweep
     if parent_run_id:
         tags[PARENT_TAG] = parent_run_id
+    # MLflow's start_run continues the run named by an inherited MLFLOW_RUN_ID instead of
+    # starting one, whatever parent is given (mlflow #15713): a job launched from inside another
+    # run (a Ray or SLURM worker, a notebook) would log into that run.
+    os.environ.pop("MLFLOW_RUN_ID", None)
     if resume_run_id:
         run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
         mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})

@@ -12,7 +12,9 @@ def test_every_package_and_the_config_tree_are_listed_for_the_wheel() -> None:
     setup = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     listed = set(setup["packages"])
     found = {
-        ".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "armexp").rglob("__init__.py")
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for top in ("armexp", "hydra_plugins")  # hydra_plugins: armexp's launcher plugin
+        for p in (ROOT / top).rglob("__init__.py")
     }
     assert found | {"armexp.conf"} == listed
     assert setup["package-dir"]["armexp.conf"] == "conf"

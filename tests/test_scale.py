@@ -148,8 +148,11 @@ def test_cluster_launcher_configs_compose() -> None:
         GlobalHydra.instance().clear()
     assert slurm._target_.endswith("submitit_launcher.SlurmLauncher")
     assert (slurm.partition, slurm.cpus_per_task, slurm.timeout_min) == ("gpu", 4, 240)
-    assert ray._target_ == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
+    assert ray._target_ == "hydra_plugins.armexp_launcher.ray_launcher.RayLauncher"
     assert ray.ray.init.address == "auto" and ray.ray.remote.num_cpus == 2
+    # Present and null: Ray 2.x refuses a size when it joins a running cluster.
+    assert "object_store_memory" in ray.ray.init and ray.ray.init.object_store_memory is None
+    assert ray.ray.remote.max_retries == 0
     assert par.hydra.launcher._target_.endswith("JoblibLauncher")
 
 
@@ -325,3 +328,53 @@ def test_an_unreachable_tracking_server_is_one_sentence(
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1
     assert f"tracking.uri={url} is not allowed: no MLflow server answers there" in err[0]
+
+
+def test_the_ray_launcher_without_its_plugin_is_one_sentence(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from armexp import launchers
+
+    monkeypatch.setattr(launchers, "_importable", lambda module: False)
+    rc = main(["simulate", "-m", "seed=0,1", "hydra/launcher=ray", f"tracking.runs_dir={tmp_path}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert "hydra/launcher=ray is not allowed here" in err[0]
+    assert 'pip install "armexp[cluster]"' in err[0]
+    assert not (tmp_path / "mlflow.db").exists()  # stopped before any run
+
+
+def test_an_unreachable_ray_cluster_is_one_sentence_within_seconds(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    pytest.importorskip("hydra_plugins.hydra_ray_launcher")
+    from armexp import launchers
+
+    where = f"127.0.0.1:{_free_port()}"  # nothing listens there
+    sweep = ["simulate", "-m", "seed=0,1", "hydra/launcher=ray", f"tracking.runs_dir={tmp_path}"]
+    start = time.time()
+    rc = main([*sweep, f"hydra.launcher.ray.init.address={where}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and time.time() - start < 30
+    assert f"no Ray cluster answers at {where}" in err[0] and "ray start --head" in err[0]
+    # `address: auto` with no cluster started on this machine and no RAY_ADDRESS
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(launchers, "RAY_CURRENT_CLUSTER", tmp_path / "none")
+    assert main(sweep) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "no Ray cluster is running on this machine and RAY_ADDRESS is not set" in line
+
+
+def test_an_inherited_mlflow_run_id_does_not_capture_a_stage_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """mlflow #15713: MLflow continues the run named by MLFLOW_RUN_ID instead of starting one."""
+    runs = tmp_path / "runs"
+    where = f"tracking.runs_dir={runs}"
+    assert main(["simulate", "scenario.duration=0.05", where]) == 0
+    (first,) = _search(f"sqlite:///{runs}/mlflow.db", "simulate")
+    monkeypatch.setenv("MLFLOW_RUN_ID", first.info.run_id)
+    assert main(["simulate", "scenario.duration=0.05", "seed=1", where]) == 0
+    second, again = _search(f"sqlite:///{runs}/mlflow.db", "simulate")
+    assert again.info.run_id == first.info.run_id and again.data.params["seed"] == "0"
+    assert second.info.run_id != first.info.run_id and second.data.params["seed"] == "1"
