@@ -129,9 +129,18 @@ def test_the_ui_commands_serve_the_stores_runs_and_stop_on_ctrl_c(
     assert line.split()[:2] == (["armexp", "ui"] if which == 0 else ["mlflow", "ui"])
     line += f" ui.port={port}" if which == 0 else f" --port {port}"
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    proc = subprocess.Popen(["bash", "-c", f"exec {line}"], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)  # fmt: skip
+    proc = subprocess.Popen(
+        ["bash", "-c", f"exec {line}"],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        # Ctrl-C's default action even where this test runs with SIGINT ignored (a background
+        # job), as a terminal would give.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     url = f"http://127.0.0.1:{port}/ajax-api/2.0/mlflow/runs/search"
     try:
         for _ in range(120):
