@@ -73,6 +73,7 @@ def test_every_sweep_example_runs_as_written(tmp_path: Path) -> None:
         _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)
 
 
+@pytest.mark.slow  # two minutes: every Examples line, a study included
 def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     runs = tmp_path / "runs"
     where = [f"tracking.runs_dir={runs}"]
