@@ -32,14 +32,11 @@ PLUGINS: dict[str, tuple[str, str]] = {
 
 def chosen_launcher(overrides: Sequence[str]) -> str | None:
     """The ``hydra/launcher=<name>`` of a command line, if any."""
-    for override in overrides:
-        key, eq, value = override.partition("=")
-        if eq and key.lstrip("+~") == "hydra/launcher":
-            return value
-    return None
+    return _override(overrides, "hydra/launcher")
 
 
 def _override(overrides: Sequence[str], key: str) -> str | None:
+    """The value ``key`` is given on a command line (``+``/``~`` prefixes aside), if any."""
     for override in overrides:
         k, eq, value = override.partition("=")
         if eq and k.lstrip("+~") == key:
