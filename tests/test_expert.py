@@ -222,3 +222,75 @@ def test_a_dearer_inside_makes_the_time_grow_faster_with_depth_into_the_margin(
     np.testing.assert_array_equal(dear[free], cheap[free])
     # A filled cell d ≥ 1 moves from free cell f: dear = T_f + 10·d·dt ≥ cheap + 9·d·dt.
     assert np.all(dear[~free] - cheap[~free] >= 9 * grid.dt - 1e-9)
+
+
+def _reference_layers(free: np.ndarray, start: np.ndarray, layers: int) -> np.ndarray:
+    """Breadth-first search written out in Python: grid moves from the start cells (−1 beyond
+    ``layers``), at most one cell per axis per move."""
+    depth = np.where(start, 0, -1)
+    moves = [m for m in np.ndindex(*(3,) * free.ndim) if any(c != 1 for c in m)]
+    frontier = list(zip(*np.nonzero(start), strict=True))
+    for layer in range(1, layers + 1):
+        grown = []
+        for cell in frontier:
+            for move in moves:
+                other = tuple(c + m - 1 for c, m in zip(cell, move, strict=True))
+                inside = all(0 <= o < k for o, k in zip(other, free.shape, strict=True))
+                if inside and free[other] and depth[other] < 0:
+                    depth[other] = layer
+                    grown.append(other)
+        frontier = grown
+    return depth
+
+
+@pytest.mark.parametrize("shape", [(13, 9), (7, 6, 5)])
+def test_the_compiled_search_matches_a_plain_breadth_first_search(shape: tuple[int, ...]) -> None:
+    rng = np.random.default_rng(len(shape))
+    free = rng.random(shape) < 0.7
+    start = np.zeros(shape, dtype=bool)
+    start[(0,) * len(shape)] = True  # a start cell need not be free
+    start[tuple(k - 2 for k in shape)] = True
+    for layers in (3, free.size):
+        expected = _reference_layers(free, start, layers)
+        times = breadth_first_times(free, start, 0.25, layers)
+        np.testing.assert_array_equal(times, np.where(expected >= 0, expected * 0.25, np.inf))
+    # Filling what the search left out: from each unreached cell, the cheapest way out through
+    # unreached cells, in moves of 0.5 s; the edge of the grid is no way out.
+    times = breadth_first_times(free, start, 0.25, free.size)
+    filled = fill_unreached(times, 0.5)
+    reached = np.isfinite(times)
+    np.testing.assert_array_equal(filled[reached], times[reached])
+    for cell in zip(*np.nonzero(~reached), strict=True):
+        out = [
+            filled[o] + 0.5
+            for o in np.ndindex(*shape)
+            if max(abs(a - b) for a, b in zip(o, cell, strict=True)) == 1
+        ]
+        assert filled[cell] == min(out)
+
+
+def test_a_batch_of_observations_gets_the_labels_each_gets_alone(
+    env: ReachEnv, expert: TimeToGoExpert, demos: list[Demonstration]
+) -> None:
+    # Rows of a few episodes (shared targets) and of several targets, near and far, in one call.
+    obs = np.concatenate([d.obs for d in demos])[::3]
+    batch = expert(obs)
+    alone = np.concatenate([expert(row) for row in obs])
+    np.testing.assert_array_equal(batch, alone)
+    assert len(np.unique(obs[:, TARGET], axis=0)) > 1
+
+
+def test_relabelled_demonstrations_are_cloned_with_the_experts_actions(
+    env: ReachEnv, expert: TimeToGoExpert, demos: list[Demonstration]
+) -> None:
+    model = small_sac(env.settings)
+    cloning = DemonstrationCloning(model, demos, 1.0, seed=0, capacity=10)
+    planned = cloning.actions[: len(cloning)].numpy().copy()
+    dim = cloning.obs.shape[1]
+    cloning.add(np.zeros((2, dim)), np.full((2, 2), 0.25))
+    fixed = len(planned)
+    cloning.relabel(expert)
+    labels = cloning.actions[:fixed].numpy()
+    np.testing.assert_array_equal(labels, expert(cloning.obs[:fixed].numpy()))
+    assert not np.array_equal(labels, planned)  # the path's commands are not the expert's
+    np.testing.assert_array_equal(cloning.actions[fixed : fixed + 2].numpy(), 0.25)

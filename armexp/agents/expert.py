@@ -125,24 +125,33 @@ class TimeToGoExpert:
         self._lengths = np.asarray(settings.plant.arm.lengths_array, dtype=np.float64)
 
     def __call__(self, obs: Array) -> np.ndarray:
-        """Actions (k, n) for the observations ``obs`` (k, d)."""
+        """Actions (k, n) for the observations ``obs`` (k, d); rows that share a target are
+        looked up in its map together."""
         obs = np.atleast_2d(np.asarray(obs, dtype=np.float64))
         out = np.empty((obs.shape[0], self.map.n), dtype=np.float32)
-        for row, o in enumerate(obs):
-            here, target = self.layout.q(o), self.layout.target(o)
-            straight = self._straight(here, target)
-            if straight is not None:
+        here, targets = self.layout.q(obs), self.layout.target(obs)
+        near = np.linalg.norm(targets - tips(here, self._lengths), axis=1) < self.approach
+        groups: dict[tuple[float, ...], list[int]] = {}
+        for row in range(obs.shape[0]):
+            straight = self._straight(here[row], targets[row]) if near[row] else None
+            if straight is None:
+                groups.setdefault(tuple(targets[row]), []).append(row)
+            else:
                 out[row] = straight
-                continue
-            q = here + self._moves
-            best = int(np.argmin(self.map.times_at(target, q)))
+        for key, members in groups.items():
+            target, chosen = np.asarray(key), np.asarray(members)
+            q = (here[chosen, None, :] + self._moves[None]).reshape(-1, self.map.n)
+            times = self.map.times_at(target, q).reshape(len(chosen), len(self._moves))
+            best = np.argmin(times, axis=1)
             # To hold (commands[0], the only one of |c|₁ = 0) is right on the target, but T is
             # also flat or at a local minimum of the interpolation a millimetre outside the
             # reach threshold: the tip's distance to the target decides there.
-            if best == 0:
-                error = np.linalg.norm(tips(q, self._lengths) - target, axis=1)
-                best = int(np.argmin(error))
-            out[row] = self.commands[best]
+            hold = best == 0
+            if hold.any():
+                moved = q.reshape(len(chosen), len(self._moves), -1)[hold]
+                error = np.linalg.norm(tips(moved, self._lengths) - target, axis=-1)
+                best[hold] = np.argmin(error, axis=1)
+            out[chosen] = self.commands[best]
         return out
 
     def _straight(self, q: Array, target: Array) -> Array | None:
@@ -184,19 +193,23 @@ class DaggerExpert(TrainingAddOn):
     """DAgger: every state the training environments visit is cloned with the action of a
     `TimeToGoExpert` kept ``margin`` (m) from obstacles that compares commands held
     ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the
-    demonstrations. Needs the cloning aid before it. Privileged: the planner labels."""
+    demonstrations. With ``relabel``, the demonstrated states are cloned with the expert's
+    actions too, in place of the planned path's, so that the actor is taught one behaviour, not
+    two (the path keeps the environment's 2 cm from obstacles, the expert its ``margin``). Needs
+    the cloning aid before it. Privileged: the planner labels."""
 
     privileged = True
     needs = (BehaviourCloning,)
 
-    def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
+    def __init__(self, margin: float = 0.10, lookahead: int = 5, relabel: bool = False) -> None:
         if not float(margin) > 0 or int(lookahead) < 1:
             raise ValueError(f"margin={margin} must be > 0 and lookahead={lookahead} at least 1")
-        self.margin, self.lookahead = float(margin), int(lookahead)
+        self.margin, self.lookahead, self.relabel = float(margin), int(lookahead), bool(relabel)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         assert ctx.cloning is not None  # `needs` put the cloning aid first
+        expert = TimeToGoExpert(ctx.settings, self.margin, self.lookahead)
+        if self.relabel:
+            ctx.cloning.relabel(expert)
         ctx.cloning.reserve(int(ctx.model.buffer_size))
-        return [
-            ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), ctx.cloning)
-        ]
+        return [ExpertLabels(expert, ctx.cloning)]

@@ -38,7 +38,10 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
         "n_steps": int(agent.n_steps),
-        "policy_kwargs": {"net_arch": list(agent.net_arch)},
+        "policy_kwargs": {
+            "net_arch": list(agent.net_arch),
+            "optimizer_kwargs": {"fused": bool(agent.fused_optimizer)},
+        },
         "device": str(agent.device),
     }
 

@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from armexp.envs.geometry import Array, clearance, tips
+from armexp.envs.grid_search import bfs_layers, neighbour_offsets, relax_unreached
 
 
 @dataclass(frozen=True)
@@ -44,20 +45,6 @@ class Workspace:
         """Least travel time to the workspace point nearest ``point`` (s)."""
         d = np.linalg.norm(self.points - np.asarray(point, dtype=np.float64), axis=1)
         return float(self.times[int(np.argmin(d))])
-
-
-def _dilate(mask: np.ndarray) -> np.ndarray:
-    """Chebyshev (3ⁿ-cube) dilation by one cell; separable, so one pass per axis."""
-    out = mask.copy()
-    for axis in range(mask.ndim):
-        grown = out.copy()
-        lead = [slice(None)] * mask.ndim
-        lag = [slice(None)] * mask.ndim
-        lead[axis], lag[axis] = slice(1, None), slice(None, -1)
-        grown[tuple(lead)] |= out[tuple(lag)]
-        grown[tuple(lag)] |= out[tuple(lead)]
-        out = grown
-    return out
 
 
 @dataclass(frozen=True)
@@ -108,35 +95,22 @@ def fill_unreached(times: Array, dt: float) -> Array:
     times are kept: a path through the filled cells never shortens them."""
     if not np.isfinite(times).any():
         return np.zeros_like(times)
-    unreached = ~np.isfinite(times)
-    t = times.copy()
-    moves = _moves(t.ndim)
-    while True:
-        padded = np.pad(t, 1, constant_values=np.inf)
-        best = t.copy()
-        for move in moves:
-            window = tuple(slice(1 + m, 1 + m + k) for m, k in zip(move, t.shape, strict=True))
-            best = np.minimum(best, padded[window] + dt)
-        best = np.where(unreached, best, times)
-        if np.array_equal(best, t):
-            return t
-        t = best
+    t = np.pad(np.asarray(times, dtype=np.float64), 1, constant_values=np.inf)
+    unreached = np.pad(~np.isfinite(times), 1, constant_values=False)
+    flat = t.ravel()
+    relax_unreached(flat, unreached.ravel(), neighbour_offsets(t.shape), float(dt))
+    return flat.reshape(t.shape)[(slice(1, -1),) * times.ndim].copy()
 
 
 def breadth_first_times(free: np.ndarray, start: np.ndarray, dt: float, layers: int) -> Array:
     """Least time (s) from the ``start`` cells to every ``free`` cell in at most ``layers`` moves
     of one cell per joint (inf beyond)."""
-    times = np.full(free.shape, np.inf)
-    frontier = start.copy()
-    visited = frontier.copy()
-    times[frontier] = 0.0
-    for layer in range(1, layers + 1):
-        frontier = _dilate(frontier) & free & ~visited
-        if not frontier.any():
-            break
-        times[frontier] = layer * dt
-        visited |= frontier
-    return times
+    padded = np.pad(free, 1, constant_values=False)
+    depth = bfs_layers(
+        padded.ravel(), np.pad(start, 1, constant_values=False).ravel(),
+        neighbour_offsets(padded.shape), int(layers),
+    ).reshape(padded.shape)[(slice(1, -1),) * free.ndim]  # fmt: skip
+    return np.where(depth >= 0, depth * dt, np.inf)
 
 
 def travel_times(

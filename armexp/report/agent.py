@@ -115,7 +115,10 @@ KNOWN_AIDS: dict[str, tuple[str, Callable[[Mapping[str, Any]], str], bool]] = {
     ),
     "armexp.agents.expert.DaggerExpert": (
         "DAgger expert",
-        lambda a: "DAgger: the planner's action cloned on every visited state",
+        lambda a: (
+            "DAgger: the planner's action cloned on every visited state"
+            + (" and on the demonstrated ones" if a.get("relabel") else "")
+        ),
         True,
     ),
     "armexp.agents.averaging.WeightAveraging": (
