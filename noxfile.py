@@ -53,7 +53,8 @@ def scale(session: nox.Session) -> None:
 
 @nox.session
 def competence(session: nox.Session) -> None:
-    """Time to competence of experiment=quick (about 25 minutes on 2 cores)."""
+    """Time to competence of experiment=demo (about 7 minutes on 2 cores; --experiment quick
+    --minutes 20 for the 20-minute preset)."""
     session.install(*INSTALL)
     session.run("python", "benchmarks/time_to_competence.py", *session.posargs)
 

@@ -26,14 +26,12 @@ from mlflow.tracking import MlflowClient
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _job(
-    runs: Path, seed: int, threads: int, seconds: float, extra: tuple[str, ...] = ()
-) -> subprocess.Popen[str]:
+def _job(runs: Path, seed: int, threads: int, seconds: float) -> subprocess.Popen[str]:
     command = [
         sys.executable, "-m", "armexp", "train", "experiment=quick", "controller.gains=paper",
         f"agent.max_minutes={seconds / 60:.4f}", f"train.torch_threads={threads}",
         "train.eval_every=0", "train.progress=false", f"seed={seed}",
-        f"tracking.runs_dir={runs}", *extra,
+        f"tracking.runs_dir={runs}",
     ]  # fmt: skip
     return subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)  # fmt: skip

@@ -73,6 +73,11 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
     assert compose("controller.gains=paper").controller.gains.a0 == 668.0
     smoke = compose("experiment=smoke")
     assert smoke.tuner.name == "cso_fast" and smoke.agent.name == "sac_smoke"
+    # The README's first line: sac_quick's aids and networks, with smaller critics, 5 minutes.
+    demo, quick = compose("experiment=demo").agent, compose("experiment=quick").agent
+    assert demo.name == "sac_demo" and demo.max_minutes == 5.0
+    assert demo.critic_arch == [64, 64] and quick.critic_arch is None
+    assert demo.aids == quick.aids and demo.net_arch == quick.net_arch == [128, 128]
 
 
 @pytest.mark.parametrize(
@@ -98,6 +103,7 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["agent.vec_env=threads"], ["agent.vec_env='threads'", "dummy, subproc"]),
         (["train.gains=best"], ["train.gains='best'", "tuned, config"]),
         (["agent.n_envs=0"], ["agent.n_envs=0", "≥ 1"]),
+        (["agent.critic_arch=[64,0]"], ["agent.critic_arch=[64, 0]", "≥ 1"]),
         (["+agent.aids.x=3"], ["agent.aids.x=3", "_target_"]),
         # Values of the right type that make no sense: one sentence, not a traceback.
         (["agent.device=foo"], ["agent.device='foo'", "cpu, auto, mps, cuda"]),

@@ -278,19 +278,3 @@ def test_a_batch_of_observations_gets_the_labels_each_gets_alone(
     alone = np.concatenate([expert(row) for row in obs])
     np.testing.assert_array_equal(batch, alone)
     assert len(np.unique(obs[:, TARGET], axis=0)) > 1
-
-
-def test_relabelled_demonstrations_are_cloned_with_the_experts_actions(
-    env: ReachEnv, expert: TimeToGoExpert, demos: list[Demonstration]
-) -> None:
-    model = small_sac(env.settings)
-    cloning = DemonstrationCloning(model, demos, 1.0, seed=0, capacity=10)
-    planned = cloning.actions[: len(cloning)].numpy().copy()
-    dim = cloning.obs.shape[1]
-    cloning.add(np.zeros((2, dim)), np.full((2, 2), 0.25))
-    fixed = len(planned)
-    cloning.relabel(expert)
-    labels = cloning.actions[:fixed].numpy()
-    np.testing.assert_array_equal(labels, expert(cloning.obs[:fixed].numpy()))
-    assert not np.array_equal(labels, planned)  # the path's commands are not the expert's
-    np.testing.assert_array_equal(cloning.actions[fixed : fixed + 2].numpy(), 0.25)

@@ -21,7 +21,6 @@ part of a checkpoint: a resumed run labels afresh.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -72,14 +71,6 @@ class DemonstrationCloning:
         obs[:fixed], actions[:fixed] = self.obs[:fixed], self.actions[:fixed]
         self.obs, self.actions = obs, actions
         self._capacity, self._added = int(capacity), 0
-
-    def relabel(self, label: Callable[[np.ndarray], np.ndarray]) -> None:
-        """Replace the demonstrated actions with ``label``'s actions at the demonstrated states
-        (the added steps are left as they are)."""
-        obs = self.obs[: self._fixed].cpu().numpy()
-        self.actions[: self._fixed] = torch.as_tensor(
-            label(obs), dtype=self.actions.dtype, device=self.actions.device
-        )
 
     def __len__(self) -> int:
         """Steps to clone from: the demonstrated ones and those `add`ed (at most ``capacity``)."""

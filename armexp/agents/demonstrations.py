@@ -53,11 +53,11 @@ def planned_actions(env: ReachEnv, config: Array) -> np.ndarray:
     times = np.arange(len(cells)) * cell_time
     steps = int(np.ceil(times[-1] / period)) + SETTLE_STEPS
     qd = np.asarray(s.q0, dtype=np.float64).copy()
+    t = np.minimum((np.arange(steps) + 1) * period, times[-1])
+    goals = np.stack([np.interp(t, times, cells[:, j]) for j in range(len(qd))], axis=1)
     out = np.empty((steps, len(qd)), dtype=np.float32)
     for k in range(steps):
-        t = min((k + 1) * period, times[-1])
-        goal = np.array([np.interp(t, times, cells[:, j]) for j in range(len(qd))])
-        command = np.clip((goal - qd) / (period * bound), -1.0, 1.0)
+        command = np.clip((goals[k] - qd) / (period * bound), -1.0, 1.0)
         qd += command * bound * period
         out[k] = command
     return out

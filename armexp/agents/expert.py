@@ -193,23 +193,19 @@ class DaggerExpert(TrainingAddOn):
     """DAgger: every state the training environments visit is cloned with the action of a
     `TimeToGoExpert` kept ``margin`` (m) from obstacles that compares commands held
     ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the
-    demonstrations. With ``relabel``, the demonstrated states are cloned with the expert's
-    actions too, in place of the planned path's, so that the actor is taught one behaviour, not
-    two (the path keeps the environment's 2 cm from obstacles, the expert its ``margin``). Needs
-    the cloning aid before it. Privileged: the planner labels."""
+    demonstrations. Needs the cloning aid before it. Privileged: the planner labels."""
 
     privileged = True
     needs = (BehaviourCloning,)
 
-    def __init__(self, margin: float = 0.10, lookahead: int = 5, relabel: bool = False) -> None:
+    def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
         if not float(margin) > 0 or int(lookahead) < 1:
             raise ValueError(f"margin={margin} must be > 0 and lookahead={lookahead} at least 1")
-        self.margin, self.lookahead, self.relabel = float(margin), int(lookahead), bool(relabel)
+        self.margin, self.lookahead = float(margin), int(lookahead)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         assert ctx.cloning is not None  # `needs` put the cloning aid first
-        expert = TimeToGoExpert(ctx.settings, self.margin, self.lookahead)
-        if self.relabel:
-            ctx.cloning.relabel(expert)
         ctx.cloning.reserve(int(ctx.model.buffer_size))
-        return [ExpertLabels(expert, ctx.cloning)]
+        return [
+            ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), ctx.cloning)
+        ]

@@ -27,6 +27,9 @@ class ResumableSAC(SAC):
 
 def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
     """SB3 keyword arguments of an ``agent`` config (the keys are Table II's)."""
+    arch: list[int] | dict[str, list[int]] = list(agent.net_arch)
+    if agent.critic_arch is not None:
+        arch = {"pi": list(agent.net_arch), "qf": list(agent.critic_arch)}
     return {
         "batch_size": int(agent.batch_size),
         "tau": float(agent.tau),
@@ -38,10 +41,7 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
         "n_steps": int(agent.n_steps),
-        "policy_kwargs": {
-            "net_arch": list(agent.net_arch),
-            "optimizer_kwargs": {"fused": bool(agent.fused_optimizer)},
-        },
+        "policy_kwargs": {"net_arch": arch},
         "device": str(agent.device),
     }
 

@@ -196,6 +196,8 @@ class AgentConfig:
     #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
     n_steps: int = checked(1, at_least(1))
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
+    #: The critics' hidden layers, where they differ from the actor's (None: ``net_arch``).
+    critic_arch: list[int] | None = checked(None, or_null(each(at_least(1))))
     #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
     n_envs: int = checked(1, at_least(1))
     vec_env: str = checked("dummy", one_of("dummy", "subproc"))
@@ -205,9 +207,6 @@ class AgentConfig:
     device: str = checked(
         "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
     )
-    #: Adam's fused kernel for the actor and critics: the same update as the per-tensor loop,
-    #: in fewer, larger operations (benchmarks/fused_adam.py measures the gain).
-    fused_optimizer: bool = True
     #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
     #: (`armexp.agents.addons`). None for the paper's plain SAC.
     aids: dict[str, Any] = field(default_factory=dict)

@@ -236,16 +236,13 @@ def shortest_path(
     shape = np.array(times.shape)
     path = [cell]
     while times[path[-1]] > 0:
-        here = np.array(path[-1])
-        best = None
-        for move in moves:
-            there = here + move
-            if np.all(there >= 0) and np.all(there < shape):
-                t = times[tuple(there)]
-                if best is None or t < best[0]:
-                    best = (t, tuple(int(v) for v in there))
-        assert best is not None and best[0] < times[path[-1]]
-        path.append(best[1])
+        there = np.array(path[-1]) + moves
+        inside = np.all((there >= 0) & (there < shape), axis=1)
+        candidates = np.full(len(moves), np.inf)
+        candidates[inside] = times[tuple(there[inside].T)]
+        best = int(np.argmin(candidates))  # the first of equal times, in `_moves` order
+        assert candidates[best] < times[path[-1]]
+        path.append(tuple(int(v) for v in there[best]))
     grid = np.array([[axes[j][c[j]] for j in range(n)] for c in reversed(path)])
     return grid, dt
 

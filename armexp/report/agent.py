@@ -115,10 +115,7 @@ KNOWN_AIDS: dict[str, tuple[str, Callable[[Mapping[str, Any]], str], bool]] = {
     ),
     "armexp.agents.expert.DaggerExpert": (
         "DAgger expert",
-        lambda a: (
-            "DAgger: the planner's action cloned on every visited state"
-            + (" and on the demonstrated ones" if a.get("relabel") else "")
-        ),
+        lambda a: "DAgger: the planner's action cloned on every visited state",
         True,
     ),
     "armexp.agents.averaging.WeightAveraging": (

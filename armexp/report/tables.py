@@ -277,6 +277,8 @@ def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Ta
             f"{'/'.join(unfinished)} run: last values logged while training"
         )
     nets = "×".join(str(int(u)) for u in agent.get("net_arch", []))
+    if agent.get("critic_arch"):
+        nets = f"actor {nets}, critics " + "×".join(str(int(u)) for u in agent["critic_arch"])
     rows: list[tuple[str, Any, Any]] = [
         ("Preset", ", ".join(dict.fromkeys(i.preset for i in infos)), "plain SAC"),
         ("Learning aids", aids, "none"),

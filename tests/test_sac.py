@@ -1,0 +1,36 @@
+"""SAC built from the ``agent`` config (armexp.agents.sac)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from armexp.agents.sac import build_sac, load_sac
+from armexp.agents.vec import make_vec_env
+from armexp.config import compose_config
+from armexp.envs.factory import settings_from_config
+
+
+def _sac(*overrides: str):  # type: ignore[no-untyped-def]
+    cfg = compose_config(["controller.gains=paper", "agent=sac_quick", *overrides])
+    env = make_vec_env(settings_from_config(cfg), 1, "dummy", 0)
+    return build_sac(cfg.agent, env, 0), cfg.agent
+
+
+def _widths(net: torch.nn.Module) -> list[int]:
+    return [m.out_features for m in net.modules() if isinstance(m, torch.nn.Linear)]
+
+
+def test_the_critics_take_their_own_hidden_layers_and_keep_them_through_a_save(
+    tmp_path: Path,
+) -> None:
+    model, agent = _sac("agent.critic_arch=[64,64]")
+    assert _widths(model.actor.latent_pi) == [128, 128]
+    for q in (*model.critic.q_networks, *model.critic_target.q_networks):
+        assert _widths(q) == [64, 64, 1]
+    model.save(tmp_path / "m.zip")
+    loaded = load_sac(str(tmp_path / "m.zip"), None, agent)
+    assert [_widths(q) for q in loaded.critic.q_networks] == [[64, 64, 1]] * 2
+    same, _ = _sac()
+    assert [_widths(q) for q in same.critic.q_networks] == [[128, 128, 1]] * 2
