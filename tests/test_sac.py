@@ -34,3 +34,18 @@ def test_the_critics_take_their_own_hidden_layers_and_keep_them_through_a_save(
     assert [_widths(q) for q in loaded.critic.q_networks] == [[64, 64, 1]] * 2
     same, _ = _sac()
     assert [_widths(q) for q in same.critic.q_networks] == [[128, 128, 1]] * 2
+
+
+def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
+    from omegaconf import OmegaConf
+
+    from armexp.report.tables import table_two
+
+    def layers(*overrides: str) -> str:
+        cfg = OmegaConf.to_container(compose_config(list(overrides)), resolve=True)
+        shown = table_two(cfg).shown  # type: ignore[arg-type]
+        (value,) = shown.loc[shown.iloc[:, 0] == "Hidden layers"].iloc[:, 1]
+        return str(value)
+
+    assert layers("experiment=demo") == "actor 128×128, critics 64×64"
+    assert layers("experiment=quick") == "128×128"
