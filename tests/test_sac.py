@@ -5,14 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
+from omegaconf import DictConfig
 
-from armexp.agents.sac import build_sac, load_sac
+from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 
 
-def _sac(*overrides: str):  # type: ignore[no-untyped-def]
+def _sac(*overrides: str) -> tuple[ResumableSAC, DictConfig]:
     cfg = compose_config(["controller.gains=paper", "agent=sac_quick", *overrides])
     env = make_vec_env(settings_from_config(cfg), 1, "dummy", 0)
     return build_sac(cfg.agent, env, 0), cfg.agent
