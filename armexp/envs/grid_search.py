@@ -13,10 +13,14 @@ import numpy as np
 from numba import njit
 
 
+def grid_moves(n: int) -> np.ndarray:
+    """The 3ⁿ grid moves of at most one cell per joint (the zero move included)."""
+    return np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
+
+
 def neighbour_offsets(padded_shape: tuple[int, ...]) -> np.ndarray:
     """Flat index offsets of the 3ⁿ − 1 neighbours on a C-ordered grid of ``padded_shape``."""
-    n = len(padded_shape)
-    moves = np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
+    moves = grid_moves(len(padded_shape))
     moves = moves[np.abs(moves).sum(axis=1) > 0]
     strides = np.cumprod((*padded_shape[1:], 1)[::-1])[::-1]
     return (moves @ strides).astype(np.int64)

@@ -23,7 +23,12 @@ from functools import lru_cache
 import numpy as np
 
 from armexp.envs.geometry import Array, clearance, tips
-from armexp.envs.grid_search import bfs_layers, neighbour_offsets, relax_unreached
+from armexp.envs.grid_search import (
+    bfs_layers,
+    grid_moves,
+    neighbour_offsets,
+    relax_unreached,
+)
 
 
 @dataclass(frozen=True)
@@ -82,11 +87,6 @@ def joint_grid(
     tip = tips(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1), lengths)
     free: np.ndarray = np.asarray((clearance(tip, obstacles) > path_margin).all(-1))
     return JointGrid(axes, tip, free, dt)
-
-
-def _moves(n: int) -> np.ndarray:
-    """The 3ⁿ grid moves of at most one cell per joint (the zero move included)."""
-    return np.stack(np.meshgrid(*[[-1, 0, 1]] * n, indexing="ij"), axis=-1).reshape(-1, n)
 
 
 def fill_unreached(times: Array, dt: float) -> Array:
@@ -232,7 +232,7 @@ def shortest_path(
     cell = tuple(int(np.rint((config[j] - axes[j][0]) / step[j])) for j in range(n))
     if not np.isfinite(times[cell]):
         raise ValueError(f"configuration {list(config)} is not reachable from q0 on the grid.")
-    moves = _moves(n)
+    moves = grid_moves(n)
     shape = np.array(times.shape)
     path = [cell]
     while times[path[-1]] > 0:
@@ -240,7 +240,7 @@ def shortest_path(
         inside = np.all((there >= 0) & (there < shape), axis=1)
         candidates = np.full(len(moves), np.inf)
         candidates[inside] = times[tuple(there[inside].T)]
-        best = int(np.argmin(candidates))  # the first of equal times, in `_moves` order
+        best = int(np.argmin(candidates))  # the first of equal times, in `grid_moves` order
         assert candidates[best] < times[path[-1]]
         path.append(tuple(int(v) for v in there[best]))
     grid = np.array([[axes[j][c[j]] for j in range(n)] for c in reversed(path)])
