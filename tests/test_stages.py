@@ -180,6 +180,7 @@ def test_tune_bad_bound_exits_2(runs_dir: Path, capsys: pytest.CaptureFixture[st
     assert err.count("\n") == 0 and "controller.bounds.r1" in err and "lower bound" in err
 
 
+@pytest.mark.slow  # about 25 s; test_cli covers the same check at combination 67
 def test_a_bad_value_late_in_a_sweep_stops_it_before_any_job(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

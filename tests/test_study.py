@@ -28,6 +28,7 @@ SMALL = [
 ]
 
 
+@pytest.mark.slow  # two studies of two seeds each: about 35 s
 def test_a_study_with_a_failed_seed_reports_the_others_and_is_finished_by_a_rerun(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

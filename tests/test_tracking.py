@@ -221,6 +221,7 @@ def test_a_read_only_runs_dir_is_one_sentence_and_nothing_is_written(tmp_path: P
     assert sorted(str(p.relative_to(runs)) for p in runs.rglob("*")) == before
 
 
+@pytest.mark.slow  # a whole pipeline: about 25 s
 def test_no_download_folder_is_left_in_the_temp_directory(tmp_path: Path) -> None:
     """Stages download configs, gains and models; the folders go when the process ends."""
     import os
