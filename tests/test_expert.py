@@ -169,40 +169,6 @@ def test_training_labels_every_visited_state_with_the_experts_action(
     assert np.ptp(added[:, 6:8], axis=0).max() > 0
 
 
-def test_retargeted_states_are_the_environments_own_observations_with_the_other_target(
-    env: ReachEnv,
-) -> None:
-    targets = [env.workspace.sample(np.random.default_rng(seed)) for seed in range(3)]
-    obs = np.stack([env.reset(seed=0, options={"target": t})[0] for t in targets])
-    # Every episode starts from the same arm state, so the reset observation with target i + 1
-    # is what the i-th row must become.
-    np.testing.assert_allclose(env.layout.retarget(obs, 1), np.roll(obs, -1, axis=0), atol=1e-6)
-    np.testing.assert_allclose(env.layout.retarget(obs, 2), np.roll(obs, -2, axis=0), atol=1e-6)
-
-
-@pytest.mark.parametrize(("n_envs", "retarget", "copies"), [(3, 2, 3), (2, 5, 2), (1, 2, 1)])
-def test_retargeting_labels_each_state_again_for_the_other_environments_targets(
-    env: ReachEnv,
-    expert: TimeToGoExpert,
-    demos: list[Demonstration],
-    n_envs: int,
-    retarget: int,
-    copies: int,
-) -> None:
-    model = small_sac(env.settings, n_envs=n_envs, batch_size=32)
-    fixed = sum(len(d) for d in demos if d.reason == "reached")
-    cloning = DemonstrationCloning(model, demos, 1.0, seed=0, capacity=1000)
-    model.learn(total_timesteps=4 * n_envs, callback=ExpertLabels(expert, cloning, retarget))
-    assert len(cloning) == fixed + 4 * n_envs * copies  # never a state with its own target twice
-    added = cloning.obs[fixed : fixed + n_envs * copies].numpy()  # the first step's rows
-    np.testing.assert_array_equal(cloning.actions[fixed : len(cloning)].numpy(),
-                                  expert(cloning.obs[fixed : len(cloning)].numpy()))  # fmt: skip
-    own, others = added[:n_envs], added[n_envs:]
-    for shift in range(1, copies):
-        rows = others[(shift - 1) * n_envs : shift * n_envs]
-        np.testing.assert_array_equal(rows, env.layout.retarget(own, shift))
-
-
 def test_the_expert_commands_every_joint_of_the_three_link_arm() -> None:
     settings = settings_from_config(compose_config(["controller.gains=paper", "robot=three_link"]))
     env = ReachEnv(settings)

@@ -176,24 +176,15 @@ class TimeToGoExpert:
 
 class ExpertLabels(BaseCallback):
     """Adds every observation the training environments return, labelled with ``expert``'s
-    action, to the states ``cloning`` clones; with ``retarget`` r > 0, each also up to r times
-    more with the target of another environment (the i-th environment's state with the targets
-    of environments i + 1, …, i + r, cyclically, as far as there are others), labelled for that
-    target."""
+    action, to the states ``cloning`` clones."""
 
-    def __init__(
-        self, expert: TimeToGoExpert, cloning: DemonstrationCloning, retarget: int = 0
-    ) -> None:
+    def __init__(self, expert: TimeToGoExpert, cloning: DemonstrationCloning) -> None:
         super().__init__()
         self.expert = expert
         self.cloning = cloning
-        self.retarget = int(retarget)
 
     def _on_step(self) -> bool:
         obs = np.asarray(self.locals["new_obs"])
-        shifts = range(1, min(self.retarget, len(obs) - 1) + 1)
-        if shifts:
-            obs = np.concatenate([obs] + [self.expert.layout.retarget(obs, r) for r in shifts])
         self.cloning.add(obs, self.expert(obs))
         return True
 
@@ -207,16 +198,14 @@ class DaggerExpert(TrainingAddOn):
     privileged = True
     needs = (BehaviourCloning,)
 
-    def __init__(self, margin: float = 0.10, lookahead: int = 5, retarget: int = 0) -> None:
-        if not float(margin) > 0 or int(lookahead) < 1 or int(retarget) < 0:
-            raise ValueError(
-                f"margin={margin} must be > 0, lookahead={lookahead} at least 1 and "
-                f"retarget={retarget} at least 0"
-            )
-        self.margin, self.lookahead, self.retarget = float(margin), int(lookahead), int(retarget)
+    def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
+        if not float(margin) > 0 or int(lookahead) < 1:
+            raise ValueError(f"margin={margin} must be > 0 and lookahead={lookahead} at least 1")
+        self.margin, self.lookahead = float(margin), int(lookahead)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         assert ctx.cloning is not None  # `needs` put the cloning aid first
         ctx.cloning.reserve(int(ctx.model.buffer_size))
-        expert = TimeToGoExpert(ctx.settings, self.margin, self.lookahead)
-        return [ExpertLabels(expert, ctx.cloning, self.retarget)]
+        return [
+            ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), ctx.cloning)
+        ]

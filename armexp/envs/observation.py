@@ -52,14 +52,6 @@ class ObservationLayout:
         """The joint angles (rad) of an observation, or of each row of a batch."""
         return np.asarray(obs[..., self.joints], dtype=np.float64)
 
-    def retarget(self, obs: Array, shift: int) -> Array:
-        """The rows of ``obs`` with the target of the row ``shift`` places on (cyclically), and
-        the tip − target entries to match; the arm's entries stay."""
-        out = np.array(obs, copy=True)
-        out[..., TARGET] = np.roll(out[..., TARGET], -shift, axis=0)
-        out[..., OFFSET] = out[..., TIP] - out[..., TARGET]
-        return out
-
     def bounds(
         self, lengths: Array, lower: Array, upper: Array, obstacles: Array
     ) -> tuple[Array, Array]:
