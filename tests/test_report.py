@@ -498,3 +498,24 @@ def test_the_readmes_filter_example_runs_as_written(store: Path, tmp_path: Path)
     )
     assert done.returncode == 0, done.stderr
     assert "eval runs matching params.seed = '0'" in done.stdout
+
+
+def test_learning_curves_without_finished_episodes_say_so_instead_of_an_empty_legend() -> None:
+    import warnings
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from armexp.report.figures import learning_curves
+
+    reward = pd.DataFrame({"step": [10, 20], "value": [-3.0, -2.5]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # matplotlib's "No artists with labels" among them
+        fig = learning_curves({"sac_smoke": {"reward": reward}})
+    top, bottom = fig.axes
+    assert top.get_legend() is None
+    assert [t.get_text() for t in top.texts] == ["no finished episodes or held-out checks"]
+    assert len(bottom.lines) == 1
+    success = pd.DataFrame({"step": [10, 20], "value": [0.0, 0.5]})
+    fig = learning_curves({"sac_smoke": {"reward": reward, "success": success}})
+    assert fig.axes[0].get_legend() is not None and not fig.axes[0].texts

@@ -156,7 +156,11 @@ def learning_curves(curves: dict[str, dict[str, pd.DataFrame]]) -> Any:
     top.set_ylabel("success rate")
     top.set_ylim(-0.02, 1.02)
     top.grid(alpha=0.3)
-    top.legend(fontsize=7)
+    if top.get_legend_handles_labels()[0]:
+        top.legend(fontsize=7)
+    else:  # a budget too short to finish an episode or reach a held-out check
+        top.text(0.5, 0.5, "no finished episodes or held-out checks", ha="center",
+                 va="center", transform=top.transAxes, fontsize=8)  # fmt: skip
     bottom.set_ylabel("episode reward (rolling mean)")
     bottom.set_xlabel("environment steps")
     bottom.grid(alpha=0.3)
