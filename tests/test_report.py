@@ -6,14 +6,17 @@ import math
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
+import matplotlib.pyplot as plt
 import pandas as pd
 import pytest
 from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
+from armexp.report.figures import learning_curves
 from tests.helpers import run_without
 
 FIGURES = (
@@ -501,13 +504,6 @@ def test_the_readmes_filter_example_runs_as_written(store: Path, tmp_path: Path)
 
 
 def test_learning_curves_without_finished_episodes_say_so_instead_of_an_empty_legend() -> None:
-    import warnings
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from armexp.report.figures import learning_curves
-
     reward = pd.DataFrame({"step": [10, 20], "value": [-3.0, -2.5]})
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # matplotlib's "No artists with labels" among them
@@ -517,5 +513,7 @@ def test_learning_curves_without_finished_episodes_say_so_instead_of_an_empty_le
     assert [t.get_text() for t in top.texts] == ["no finished episodes or held-out checks"]
     assert len(bottom.lines) == 1
     success = pd.DataFrame({"step": [10, 20], "value": [0.0, 0.5]})
-    fig = learning_curves({"sac_smoke": {"reward": reward, "success": success}})
-    assert fig.axes[0].get_legend() is not None and not fig.axes[0].texts
+    with_episodes = learning_curves({"sac_smoke": {"reward": reward, "success": success}})
+    assert with_episodes.axes[0].get_legend() is not None and not with_episodes.axes[0].texts
+    plt.close(fig)
+    plt.close(with_episodes)
