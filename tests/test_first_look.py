@@ -36,7 +36,7 @@ def test_a_pipeline_fits_on_one_screen_with_one_line_per_stage(tmp_path: Path) -
     """From a fresh runs/ folder, with warnings shown as a developer's Python shows them: every
     stage prints one summary line naming its run, the pipeline names its report, and nothing
     else reaches the terminal (no warnings, download bars or log records)."""
-    small = [*SMALL_TUNE, *SMALL_TRAIN, "tasks.n_random=1"]
+    small = [*SMALL_TUNE, *SMALL_TRAIN, "tasks.n_random=1", "seed=2", "tuner.seed=1"]
     done = _armexp(["pipeline", "experiment=smoke", *small], tmp_path, PYTHONWARNINGS="default")
     out = done.stdout + done.stderr
     assert done.returncode == 0, out[-3000:]
@@ -52,28 +52,26 @@ def test_a_pipeline_fits_on_one_screen_with_one_line_per_stage(tmp_path: Path) -
         assert [line.split()[2] for line in summaries] == ids, out
     assert lines[-1].startswith(f"pipeline: run {parent.info.run_id} |"), out
     assert lines[-1].endswith(str(runs.resolve() / "report" / "index.html")), out
-
-
-def test_the_experiment_is_marked_classic_ml_and_runs_are_named_by_what_they_are(
-    tmp_path: Path,
-) -> None:
-    """A pipeline's runs in a real store, and a study's parent named by its seeds."""
-    runs = tmp_path / "runs"
-    small = [*SMALL_TUNE, *SMALL_TRAIN, "tasks.n_random=1", f"tracking.runs_dir={runs}"]
-    assert main(["pipeline", *small, "seed=2", "tuner.seed=1"]) == 0
-    client = MlflowClient(f"sqlite:///{runs}/mlflow.db")
-    experiment = client.get_experiment_by_name("armexp")
-    assert experiment is not None and experiment.tags.items() >= KIND.items()
+    # Each stage's run is named by what it is (simulate runs: the next test).
     assert _names(runs, "pipeline") == ["pipeline-s2"]
     assert _names(runs, "tune") == ["tune-subsystem_adaptive-s1", "tune-pid-s1"]
     assert _names(runs, "train") == ["train-sac_smoke-s2"]
     assert _names(runs, "eval") == ["eval-sac_smoke-s2"]
     assert _names(runs, "report") == ["report"]
-    # A name the user gives wins.
+
+
+def test_the_experiment_is_marked_classic_ml_and_runs_are_named_by_what_they_are(
+    tmp_path: Path,
+) -> None:
+    """The experiment's kind in a real store, and simulate runs named by controller, scenario
+    and seed unless the user names them (the pipeline's stages: the test above)."""
+    runs = tmp_path / "runs"
     assert main(["simulate", "scenario.duration=0.05", f"tracking.runs_dir={runs}"]) == 0
     assert main(["simulate", "scenario.duration=0.05", "controller=pid", "scenario=hold",
                  "seed=3", "simulate.run_name=mine", f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
     assert _names(runs, "simulate") == ["simulate-subsystem_adaptive-switching-s0", "mine"]
+    experiment = MlflowClient(f"sqlite:///{runs}/mlflow.db").get_experiment_by_name("armexp")
+    assert experiment is not None and experiment.tags.items() >= KIND.items()
 
 
 def test_a_sweep_names_its_jobs_by_the_values_it_varies(tmp_path: Path) -> None:
