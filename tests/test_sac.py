@@ -5,12 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
+from armexp.report.tables import table_two
 
 
 def _sac(*overrides: str) -> tuple[ResumableSAC, DictConfig]:
@@ -38,10 +39,6 @@ def test_the_critics_take_their_own_hidden_layers_and_keep_them_through_a_save(
 
 
 def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
-    from omegaconf import OmegaConf
-
-    from armexp.report.tables import table_two
-
     def layers(*overrides: str) -> str:
         cfg = OmegaConf.to_container(compose_config(list(overrides)), resolve=True)
         shown = table_two(cfg).shown  # type: ignore[arg-type]
