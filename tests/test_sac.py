@@ -6,8 +6,9 @@ from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
+from stable_baselines3 import SAC
 
-from armexp.agents.sac import ResumableSAC, build_sac, load_sac
+from armexp.agents.sac import ResumableSAC, build_sac, load_sac, sac_kwargs
 from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
@@ -47,3 +48,25 @@ def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
 
     assert layers("experiment=demo") == "actor 128×128, critics 64×64"
     assert layers("experiment=quick") == "128×128"
+
+
+def test_the_lean_update_gives_the_parameters_of_sb3s_update() -> None:
+    class Reference(ResumableSAC):
+        train = SAC.train  # SB3's own update
+
+    def trained(cls: type[ResumableSAC]) -> tuple[torch.Tensor, dict[str, float]]:
+        cfg = compose_config(
+            ["controller.gains=paper", "experiment=demo", "agent.learning_starts=100"]
+        )
+        env = make_vec_env(settings_from_config(cfg), 2, "dummy", 0)
+        model = cls("MlpPolicy", env, seed=0, verbose=0, **sac_kwargs(cfg.agent))
+        model.learn(600)
+        logged = {k: float(v) for k, v in model.logger.name_to_value.items() if "loss" in k}
+        tensors = [p.detach().flatten() for p in model.policy.parameters()]
+        return torch.cat([*tensors, model.log_ent_coef.detach().flatten()]), logged
+
+    (ours, our_log), (sb3, sb3_log) = trained(ResumableSAC), trained(Reference)
+    assert ours.numel() > 10_000 and torch.equal(ours, sb3)
+    assert our_log == sb3_log and set(our_log) == {
+        "train/actor_loss", "train/critic_loss", "train/ent_coef_loss"
+    }  # fmt: skip
