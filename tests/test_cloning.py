@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from stable_baselines3 import SAC
 
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import Demonstration, demonstrations
@@ -30,17 +31,6 @@ def _model(env: ReachEnv) -> ResumableSAC:
     return model
 
 
-def _actor_grads(model: ResumableSAC) -> list[torch.Tensor]:
-    return [
-        torch.zeros_like(p) if p.grad is None else p.grad.clone() for p in model.actor.parameters()
-    ]
-
-
-def _grads(loss: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
-    got = torch.autograd.grad(loss, params, allow_unused=True)  # log_std: not in μ
-    return [torch.zeros_like(p) if g is None else g for p, g in zip(params, got, strict=True)]
-
-
 def test_only_reaching_demonstrations_are_cloned(env: ReachEnv, demos: list[Demonstration]) -> None:
     model = _model(env)
     failed = Demonstration(**{**vars(demos[0]), "reason": "joint_limit"})
@@ -50,31 +40,52 @@ def test_only_reaching_demonstrations_are_cloned(env: ReachEnv, demos: list[Demo
         DemonstrationCloning(model, [failed], 1.0, seed=0)
 
 
-def test_each_actor_step_gets_sacs_gradient_plus_the_cloning_gradient(
+def _filled(env: ReachEnv) -> ResumableSAC:
+    """A model whose replay buffer holds 200 random steps and that has not trained yet."""
+    model = _model(env)
+    model.learn(total_timesteps=200)  # learning_starts (1000) not reached: collection only
+    return model
+
+
+def _term_loss(model: ResumableSAC, term: DemonstrationCloning) -> torch.Tensor:
+    """The term's loss on its next batch, from actor and critic passes of their own."""
+    obs, actions = term.batch()
+    with torch.no_grad():
+        q = torch.cat(model.critic(obs, actions), dim=1).min(dim=1).values
+    return term.loss(model.actor(obs, deterministic=True), actions, q)
+
+
+def test_an_update_with_the_cloning_term_is_sacs_update_plus_the_cloning_gradient(
     env: ReachEnv, demos: list[Demonstration]
 ) -> None:
-    model = _model(env)
-    cloning = DemonstrationCloning(model, demos, 0.7, seed=3)
-    seen: list[list[torch.Tensor]] = []
-    model.actor.optimizer.register_step_pre_hook(lambda *_: seen.append(_actor_grads(model)))
-    params = list(model.actor.parameters())
+    # The reference: SB3's own update, with the term's gradient added just before the actor's
+    # optimiser step from separate actor and critic passes on the term's batch.
+    class Reference(ResumableSAC):
+        train = SAC.train
 
-    # Any actor loss stands in for SAC's; the optimiser step must see the sum of both gradients.
-    obs = torch.as_tensor(np.stack([d.obs[0] for d in demos]))
-    own = model.actor(obs, deterministic=True).sum()
-    own_grads = _grads(own, params)
-    state = cloning.generator.get_state()
-    bc_grads = _grads(cloning.loss(), params)
-    cloning.generator.set_state(state)  # the hook draws the same demonstrated batch
+    ours, reference = _filled(env), _filled(env)
+    reference.__class__ = Reference
+    term = DemonstrationCloning(ours, demos, 0.7, seed=3)
+    reference_term = DemonstrationCloning(reference, demos, 0.7, seed=3)
 
-    model.actor.optimizer.zero_grad()
-    model.actor(obs, deterministic=True).sum().backward()
-    model.actor.optimizer.step()
-    assert len(seen) == 1
-    for got, a, b in zip(seen[0], own_grads, bc_grads, strict=True):
-        assert torch.allclose(got, a + b, atol=1e-6)
-    assert cloning.last_loss > 0
-    assert model.logger.name_to_value["train/bc_loss"] == pytest.approx(cloning.last_loss)
+    def add_gradient(*_: object) -> None:
+        with torch.enable_grad():
+            _term_loss(reference, reference_term).backward()
+
+    reference.actor.optimizer.register_step_pre_hook(add_gradient)
+    for model in (ours, reference):
+        torch.manual_seed(5)
+        np.random.seed(5)
+        model.train(gradient_steps=3, batch_size=64)
+    for a, b in zip(ours.policy.parameters(), reference.policy.parameters(), strict=True):
+        assert torch.allclose(a, b, atol=1e-5), float((a - b).abs().max())
+    untrained = _model(env).actor.parameters()
+    assert all(
+        not torch.equal(a, b) for a, b in zip(ours.actor.parameters(), untrained, strict=True)
+    )
+    assert term.last_loss > 0 and term.last_loss == pytest.approx(reference_term.last_loss, 1e-4)
+    logged = [m.logger.name_to_value["train/bc_loss"] for m in (ours, reference)]  # 3 steps' mean
+    assert logged[0] == pytest.approx(logged[1], 1e-4)
 
 
 def test_the_cloning_term_alone_makes_the_actor_imitate_the_planner(
@@ -89,16 +100,15 @@ def test_the_cloning_term_alone_makes_the_actor_imitate_the_planner(
             return float(((model.actor(obs, deterministic=True) - planned) ** 2).mean())
 
     before = error()
-    for _ in range(400):
+    for _ in range(400):  # no SAC loss: only the cloning term moves the actor
         model.actor.optimizer.zero_grad()
-        model.actor.optimizer.step()  # no SAC gradient: only the cloning term moves the actor
+        _term_loss(model, cloning).backward()
+        model.actor.optimizer.step()
     after = error()
     assert after < before / 5
     with torch.no_grad():
         signs = torch.sign(model.actor(obs, deterministic=True)) == torch.sign(planned)
     assert float(signs[planned.abs() > 0.5].float().mean()) > 0.9
+    assert model.actor_terms == [cloning]
     cloning.detach()
-    weights = [p.clone() for p in model.actor.parameters()]
-    model.actor.optimizer.zero_grad()
-    model.actor.optimizer.step()
-    assert all(torch.equal(w, p) for w, p in zip(weights, model.actor.parameters(), strict=True))
+    assert model.actor_terms == []

@@ -10,8 +10,9 @@ demonstrated states directly, as in DDPGfD/TD3+BC (Nair et al., 2018; Fujimoto &
 
 with B SAC's replayed batch, D a batch of demonstrated states s_d and planner actions a_d, and μ
 the actor's deterministic (squashed mean) action. Scaling by mean |Q| makes ``w`` independent of
-the reward's scale, as TD3+BC's normalisation does. The term is added as a gradient just before
-each actor optimiser step, so SB3's own SAC update runs unchanged.
+the reward's scale, as TD3+BC's normalisation does. The term is one of the model's
+`~armexp.agents.sac.ActorTerm`s: its states go through the same actor and critic passes as SAC's
+batch, and its loss joins SAC's actor loss before the one backward pass.
 
 With ``capacity`` > 0, D also holds up to that many further labelled steps (`add`, the newest
 replacing the oldest), such as the learner's own states labelled by the planner
@@ -21,24 +22,27 @@ part of a checkpoint: a resumed run labels afresh.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations
 
+if TYPE_CHECKING:
+    from armexp.agents.sac import ResumableSAC
+
 
 class DemonstrationCloning:
-    """Adds the behaviour-cloning gradient of the reached ``demos`` to every actor update of
-    ``model`` (a batch of ``model.batch_size`` demonstrated steps each)."""
+    """Adds the behaviour-cloning loss of the reached ``demos`` to every actor update of
+    ``model`` (a batch of ``model.batch_size`` demonstrated steps each): an
+    `~armexp.agents.sac.ActorTerm`."""
 
     def __init__(
         self,
-        model: SAC,
+        model: ResumableSAC,
         demos: list[Demonstration],
         weight: float,
         seed: int,
@@ -61,7 +65,7 @@ class DemonstrationCloning:
         self.actions[: self._fixed] = torch.as_tensor(actions)
         self.generator = torch.Generator(device=device).manual_seed(seed)
         self.last_loss = float("nan")
-        self._handle = model.actor.optimizer.register_step_pre_hook(self._add_gradient)
+        model.actor_terms.append(self)
 
     def reserve(self, capacity: int) -> None:
         """Room for ``capacity`` added steps (`add`); steps added before are dropped."""
@@ -89,31 +93,25 @@ class DemonstrationCloning:
         )
         self._added += len(actions)
 
-    def loss(self) -> torch.Tensor:
-        """The weighted cloning loss on one sampled batch of demonstrated steps."""
+    def batch(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """A batch of ``model.batch_size`` demonstrated or added states and their actions."""
         index = torch.randint(
             len(self), (self.model.batch_size,), generator=self.generator, device=self.obs.device
         )
-        obs, target = self.obs[index], self.actions[index]
-        action = self.model.actor(obs, deterministic=True)
-        with torch.no_grad():
-            q = self._q(obs, target)
-        error = ((action - target) ** 2).mean(dim=1)
-        return self.weight * q.abs().mean() * error.mean()
+        return self.obs[index], self.actions[index]
 
-    def _q(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return torch.cat(self.model.critic(obs, action), dim=1).min(dim=1).values
-
-    def _add_gradient(self, optimizer: Any, args: Any, kwargs: Any) -> None:
-        # SAC's actor gradient is already in .grad here; accumulating ours gives the sum's.
-        with torch.enable_grad():
-            loss = self.loss()
-            loss.backward()
+    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """The weighted cloning loss of the actor's deterministic actions ``mode`` at a `batch`
+        whose actions are ``actions`` and whose critic value is ``q`` (no gradient)."""
+        error = ((mode - actions) ** 2).mean(dim=1)
+        loss = self.weight * q.abs().mean() * error.mean()
         self.last_loss = float(loss.detach())
         self.model.logger.record_mean("train/bc_loss", self.last_loss)
+        return loss
 
     def detach(self) -> None:
-        self._handle.remove()
+        """Stop adding the term to the model's actor updates."""
+        self.model.actor_terms.remove(self)
 
 
 class BehaviourCloning(TrainingAddOn):

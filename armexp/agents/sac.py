@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -13,20 +13,45 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
 
+class ActorTerm(Protocol):
+    """A loss that SAC's actor update adds to its own (Algorithm 1, line 14), on states of the
+    term's choosing (the cloning aid, `armexp.agents.cloning`)."""
+
+    def batch(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """States (k, d) and actions (k, n) for this update."""
+        ...
+
+    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """The term from the actor's deterministic action ``mode`` (k, n) at the states, the
+        batch's ``actions`` and the critics' (smaller) value of them ``q`` (k,), no gradient."""
+        ...
+
+
 class ResumableSAC(SAC):
-    """SB3's SAC with two changes.
+    """SB3's SAC with three changes.
 
     - Once resumed from a checkpoint, it refills its (empty) replay buffer with its own policy
       instead of the uniform random actions SB3 uses before ``learning_starts``.
     - `train` is SB3's update (Algorithm 1, lines 11–15) without the work whose result SB3
       throws away: the critics' parameter gradients of the actor loss (zeroed before the next
       critic step), the recursive train-mode switch when the policy is in train mode already,
-      and per-tensor target averaging (one foreach call instead). The arithmetic is the same
-      operation for operation, so a seed's run gives the same parameters as SB3's update
-      (``tests/test_sac.py``), in less time per update.
+      and per-tensor target averaging (one foreach call instead). Without `actor_terms` the
+      arithmetic is SB3's operation for operation, so a seed's run gives the same parameters
+      as SB3's update (``tests/test_sac.py``), in less time per update.
+    - `actor_terms` (the cloning aid's) add their gradients to the actor loss's before the
+      actor's optimiser step.
     """
 
     resumed = False
+    #: Further actor loss terms on states of their own (the cloning aid); see `ActorTerm`.
+    actor_terms: list[ActorTerm]
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        self.actor_terms = []
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "actor_terms"]
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
@@ -89,6 +114,11 @@ class ResumableSAC(SAC):
                 actor_losses.append(actor_loss.item())
                 actor.optimizer.zero_grad()
                 actor_loss.backward()
+                for term in self.actor_terms:  # their gradients add to SAC's
+                    states, actions = term.batch()
+                    with torch.no_grad():
+                        q = torch.cat(critic(states, actions), dim=1).min(dim=1).values
+                    term.loss(actor(states, deterministic=True), actions, q).backward()
             finally:
                 for param in critic_params:
                     param.requires_grad_(True)
