@@ -14,7 +14,9 @@ milliseconds per gradient step and its ratio to SB3's update measured in the sam
 - ``sb3``: SB3's ``SAC.train`` with Adam's per-tensor loop, the cloning gradient added by an
   optimiser hook before the actor's step;
 - ``autograd``: `ResumableSAC.train` (``agent.gradients=autograd``), which gives the same
-  parameters as ``sb3`` (``tests/test_sac.py``).
+  parameters as ``sb3`` (``tests/test_sac.py``);
+- ``analytic``: `ResumableSAC.train` with ``agent.gradients=analytic`` and Adam's fused kernel
+  (the same update to rounding, ``tests/test_analytic.py``).
 """
 
 from __future__ import annotations
@@ -41,13 +43,17 @@ class _SB3Update(ResumableSAC):
 
 
 def _model(variant: str) -> ResumableSAC:
-    cfg = compose_config(["controller.gains=paper", "experiment=demo"])
+    gradients = "analytic" if variant == "analytic" else "autograd"
+    cfg = compose_config(
+        ["controller.gains=paper", "experiment=demo", f"agent.gradients={gradients}"]
+    )
     env = make_vec_env(settings_from_config(cfg), int(cfg.agent.n_envs), "dummy", 0)
     kwargs: dict[str, Any] = sac_kwargs(cfg.agent)
     if variant == "sb3":
         kwargs["policy_kwargs"]["optimizer_kwargs"] = {}
     cls = _SB3Update if variant == "sb3" else ResumableSAC
     model = cls("MlpPolicy", env, seed=0, verbose=0, **kwargs)
+    model.gradients = gradients
     model.learn(total_timesteps=int(cfg.agent.learning_starts))  # sets up the logger
     rng = np.random.default_rng(0)
     dim, n_envs = env.observation_space.shape[0], env.num_envs  # type: ignore[index]
@@ -84,7 +90,7 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=100, help="updates (2 steps each) per round")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    variants = ["sb3", "autograd"]
+    variants = ["sb3", "autograd", "analytic"]
     models = {v: _model(v) for v in variants}
     batch = int(compose_config(["experiment=demo"]).agent.batch_size)
     times: dict[str, list[float]] = {v: [] for v in variants}

@@ -207,6 +207,9 @@ class AgentConfig:
     device: str = checked(
         "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
     )
+    #: How the update's gradients are computed: ``autograd`` (SB3's update) or ``analytic``
+    #: (the same losses' gradients written out, `armexp.agents.analytic`; MLP policies).
+    gradients: str = checked("autograd", one_of("autograd", "analytic"))
     #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
     #: (`armexp.agents.addons`). None for the paper's plain SAC.
     aids: dict[str, Any] = field(default_factory=dict)
