@@ -37,6 +37,7 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/controller_check.py")
     session.run("python", "benchmarks/cso_quality.py")
     session.run("python", "benchmarks/env_speed.py")
+    session.run("python", "benchmarks/update_speed.py")
     session.run("python", "benchmarks/report_speed.py")
 
 

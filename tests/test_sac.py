@@ -50,6 +50,18 @@ def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
     assert layers("experiment=quick") == "128×128"
 
 
+def test_table_ii_says_how_the_gradients_were_computed() -> None:
+    def gradients(*overrides: str) -> str:
+        cfg = OmegaConf.to_container(compose_config(list(overrides)), resolve=True)
+        shown = table_two(cfg).shown  # type: ignore[arg-type]
+        (value,) = shown.loc[shown.iloc[:, 0] == "Gradients"].iloc[:, 1]
+        return str(value)
+
+    assert gradients("experiment=demo") == "analytic"
+    assert gradients("experiment=quick") == "autograd"
+    assert gradients("experiment=quick", "agent.gradients=analytic") == "analytic"
+
+
 def test_the_lean_update_gives_the_parameters_of_sb3s_update() -> None:
     class Reference(ResumableSAC):
         train = SAC.train  # SB3's own update

@@ -304,6 +304,7 @@ def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Ta
             f"{_plain(agent['gradient_steps'])} every {_plain(agent['train_freq'])} step(s)",
             "–",
         ),
+        ("Gradients", agent.get("gradients", "autograd"), "–"),
         (
             "Training budget",
             budget,
