@@ -3,8 +3,9 @@
 For the small multilayer perceptrons of this task (a 128×128 actor, 64×64 critics, batches of
 256) most of an autograd update's time is bookkeeping, not arithmetic: building the graph,
 module calls and the distribution objects cost about three times the matrix products. This
-update runs the same losses as SB3's `SAC.train`, with the same sampling and the same optimisers,
-but computes each gradient with the chain rule written out below, one matrix product per layer:
+update runs the same losses as SB3's `SAC.train`, with the same sampling and Adam (its fused
+kernel), but computes each gradient with the chain rule written out below, one matrix product
+per layer:
 
 - critics: L_Q = ½ Σᵢ mean (Qᵢ(s, a) − y)², y = r + (1 − d) γⁿ (min_j Q̄_j(s', a') − α log π(a'|s'));
 - actor: L_π = mean (α log π(ã|s) − min_j Q_j(s, ã)), ã = tanh(μ + σ ε), with

@@ -45,7 +45,7 @@ class ResumableSAC(SAC):
       actor's optimiser step.
     - With ``gradients = "analytic"`` the same losses' gradients are written out
       (`armexp.agents.analytic`) instead of built by autograd: the same update to rounding, in
-      about half the time.
+      about two thirds of the time.
     """
 
     resumed = False
