@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +11,7 @@ import torch
 from armexp.agents.analytic import AnalyticUpdate
 from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.demonstrations import demonstrations
-from armexp.agents.sac import ResumableSAC, build_sac
+from armexp.agents.sac import ResumableSAC, _with_gradients, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError, compose_config
 from armexp.envs.factory import settings_from_config
@@ -28,6 +30,7 @@ def _filled(gradients: str, *overrides: str) -> ResumableSAC:
 
 
 def _state(model: ResumableSAC) -> list[torch.Tensor]:
+    assert model.log_ent_coef is not None  # ent_coef "auto"
     return [p.detach().clone() for p in model.policy.parameters()] + [model.log_ent_coef.clone()]
 
 
@@ -38,9 +41,8 @@ def test_the_written_out_gradients_make_autograds_update(cloning: bool) -> None:
     assert all(torch.equal(a, b) for a, b in zip(before, _state(models["analytic"]), strict=True))
     terms = {}
     if cloning:
-        demos = demonstrations(
-            ReachEnv(models["autograd"].get_env().envs[0].unwrapped.settings), 4, seed=1
-        )
+        settings = settings_from_config(compose_config(["controller.gains=paper"]))
+        demos = demonstrations(ReachEnv(settings), 4, seed=1)
         terms = {g: DemonstrationCloning(m, demos, 3.0, seed=7) for g, m in models.items()}
     logged = {}
     for gradients, model in models.items():
@@ -66,6 +68,23 @@ def test_analytic_gradients_refuse_what_they_do_not_cover() -> None:
         )
         env = make_vec_env(settings_from_config(cfg), 1, "dummy", 0)
         model = ResumableSAC("MlpPolicy", env, policy_kwargs={"activation_fn": torch.nn.Tanh})
-        from armexp.agents.sac import _with_gradients
-
         _with_gradients(model, cfg.agent)
+
+
+def test_a_saved_analytic_model_loads_with_its_gradients_and_trains_on(tmp_path: Path) -> None:
+    model = _filled("analytic")
+    model.train(gradient_steps=1, batch_size=64)
+    model.save(tmp_path / "m.zip")
+    agent = compose_config(["experiment=demo"]).agent
+    loaded = load_sac(str(tmp_path / "m.zip"), model.get_env(), agent)
+    assert loaded.gradients == "analytic" and loaded.actor_terms == [] and loaded._analytic is None
+    assert loaded.actor.optimizer.defaults["fused"] is True
+    for a, b in zip(loaded.policy.parameters(), model.policy.parameters(), strict=True):
+        assert torch.equal(a, b)
+    loaded.replay_buffer = model.replay_buffer
+    loaded.set_logger(model.logger)
+    loaded.train(gradient_steps=1, batch_size=64)
+    assert any(
+        not torch.equal(a, b)
+        for a, b in zip(loaded.policy.parameters(), model.policy.parameters(), strict=True)
+    )

@@ -75,6 +75,7 @@ def test_the_lean_update_gives_the_parameters_of_sb3s_update() -> None:
         model.learn(600)
         logged = {k: float(v) for k, v in model.logger.name_to_value.items() if "loss" in k}
         tensors = [p.detach().flatten() for p in model.policy.parameters()]
+        assert model.log_ent_coef is not None  # ent_coef "auto"
         return torch.cat([*tensors, model.log_ent_coef.detach().flatten()]), logged
 
     (ours, our_log), (sb3, sb3_log) = trained(ResumableSAC), trained(Reference)

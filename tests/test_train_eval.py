@@ -204,13 +204,14 @@ AIDS = {
 }
 
 
+@pytest.mark.parametrize("gradients", ["autograd", "analytic"])
 def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstrations(
-    runs_dir: Path,
+    runs_dir: Path, gradients: str
 ) -> None:
     aids = [f"+agent.aids.{name}={spec}" for name, spec in AIDS.items()]
     rc = main(
         ["train", "controller.gains=paper", *SMALL_TRAIN, "agent.max_env_steps=150", *aids,
-         "env.max_steps=1000", f"tracking.runs_dir={runs_dir}"]
+         "env.max_steps=1000", f"agent.gradients={gradients}", f"tracking.runs_dir={runs_dir}"]
     )  # fmt: skip
     assert rc == 0
     (run,) = _runs(runs_dir, "train")
@@ -221,6 +222,7 @@ def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstration
     assert m["demonstrations/steps"] > 6 * 50  # whole episodes of seconds, not single steps
     # The demonstrations do not count as the agent's own environment steps.
     assert m["final/env_steps"] <= 152
+    assert run.data.params["agent.gradients"] == gradients
 
 
 @pytest.mark.parametrize(
