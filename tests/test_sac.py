@@ -39,27 +39,23 @@ def test_the_critics_take_their_own_hidden_layers_and_keep_them_through_a_save(
     assert [_widths(q) for q in same.critic.q_networks] == [[128, 128, 1]] * 2
 
 
-def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
-    def layers(*overrides: str) -> str:
-        cfg = OmegaConf.to_container(compose_config(list(overrides)), resolve=True)
-        shown = table_two(cfg).shown  # type: ignore[arg-type]
-        (value,) = shown.loc[shown.iloc[:, 0] == "Hidden layers"].iloc[:, 1]
-        return str(value)
+def _table_two(row: str, *overrides: str) -> str:
+    """Table II's value in ``row`` for the config of ``overrides``."""
+    cfg = OmegaConf.to_container(compose_config(list(overrides)), resolve=True)
+    shown = table_two(cfg).shown  # type: ignore[arg-type]
+    (value,) = shown.loc[shown.iloc[:, 0] == row].iloc[:, 1]
+    return str(value)
 
-    assert layers("experiment=demo") == "actor 128×128, critics 64×64"
-    assert layers("experiment=quick") == "128×128"
+
+def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
+    assert _table_two("Hidden layers", "experiment=demo") == "actor 128×128, critics 64×64"
+    assert _table_two("Hidden layers", "experiment=quick") == "128×128"
 
 
 def test_table_ii_says_how_the_gradients_were_computed() -> None:
-    def gradients(*overrides: str) -> str:
-        cfg = OmegaConf.to_container(compose_config(list(overrides)), resolve=True)
-        shown = table_two(cfg).shown  # type: ignore[arg-type]
-        (value,) = shown.loc[shown.iloc[:, 0] == "Gradients"].iloc[:, 1]
-        return str(value)
-
-    assert gradients("experiment=demo") == "analytic"
-    assert gradients("experiment=quick") == "autograd"
-    assert gradients("experiment=quick", "agent.gradients=analytic") == "analytic"
+    assert _table_two("Gradients", "experiment=demo") == "analytic"
+    assert _table_two("Gradients", "experiment=quick") == "autograd"
+    assert _table_two("Gradients", "experiment=quick", "agent.gradients=analytic") == "analytic"
 
 
 def test_the_lean_update_gives_the_parameters_of_sb3s_update() -> None:
