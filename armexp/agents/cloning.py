@@ -11,8 +11,8 @@ demonstrated states directly, as in DDPGfD/TD3+BC (Nair et al., 2018; Fujimoto &
 with B SAC's replayed batch, D a batch of demonstrated states s_d and planner actions a_d, and μ
 the actor's deterministic (squashed mean) action. Scaling by mean |Q| makes ``w`` independent of
 the reward's scale, as TD3+BC's normalisation does. The term is one of the model's
-`~armexp.agents.sac.ActorTerm`s: its states go through the same actor and critic passes as SAC's
-batch, and its loss joins SAC's actor loss before the one backward pass.
+`~armexp.agents.sac.ActorTerm`s: each update adds its gradient to that of SAC's actor loss
+before the actor's optimiser step.
 
 With ``capacity`` > 0, D also holds up to that many further labelled steps (`add`, the newest
 replacing the oldest), such as the learner's own states labelled by the planner

@@ -31,7 +31,7 @@ class ActorTerm(Protocol):
 
 
 class ResumableSAC(SAC):
-    """SB3's SAC with three changes.
+    """SB3's SAC with these changes.
 
     - Once resumed from a checkpoint, it refills its (empty) replay buffer with its own policy
       instead of the uniform random actions SB3 uses before ``learning_starts``.
