@@ -44,13 +44,12 @@ HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 def _linear_layers(net: nn.Module) -> Layers | None:
     """(weight, bias) of ``net``'s layers if it is Linear, ReLU, …, Linear; else None."""
     modules = list(net) if isinstance(net, nn.Sequential) else [net]
-    linears = [m for m in modules if isinstance(m, nn.Linear)]
-    relus = [m for m in modules if isinstance(m, nn.ReLU)]
-    if len(linears) + len(relus) != len(modules) or any(m.bias is None for m in linears):
+    kinds = [nn.Linear if k % 2 == 0 else nn.ReLU for k in range(len(modules))]
+    if not all(isinstance(m, kind) for m, kind in zip(modules, kinds, strict=True)):
+        return None  # not Linear and ReLU strictly alternating
+    linears: list[nn.Linear] = modules[0::2]  # type: ignore[assignment]
+    if any(m.bias is None for m in linears):
         return None
-    kinds = [isinstance(m, nn.Linear) for m in modules]
-    if kinds[1::2] != [False] * len(kinds[1::2]) or not all(kinds[0::2]):
-        return None  # not strictly alternating
     return [(m.weight, m.bias) for m in linears]
 
 
