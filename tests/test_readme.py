@@ -178,3 +178,14 @@ def test_the_ui_commands_serve_the_stores_runs_and_stop_on_ctrl_c(
     (after,) = stage_runs(tmp_path / "runs", "simulate")
     assert after.info.status == "FINISHED"
     assert stage_runs(tmp_path / "runs", "ui") == []  # serving the UI is not a run
+
+
+def test_ci_runs_the_readmes_test_line_and_both_lines_install_quietly() -> None:
+    """`.ci/run` is the README's second line on a fresh clone; both set-up lines pass ``-q`` to
+    pip, so the first one's output is armexp's own summary lines (one screen)."""
+    first, second = README.read_text().split("```bash\n", 1)[1].split("```", 1)[0].splitlines()
+    ci = (README.parent / ".ci" / "run").read_text().strip().splitlines()[-1]
+    assert ci == second.split("  #")[0].strip()
+    for line in (first, second):
+        assert "pip install -q -c constraints.txt " in line
+    assert "armexp pipeline experiment=demo" in first
