@@ -115,7 +115,7 @@ class AnalyticUpdate:
         from stable_baselines3.common.torch_layers import FlattenExtractor
 
         actor, critic = model.actor, model.critic
-        if model.use_sde or model.target_update_interval != 1 or model.batch_norm_stats:
+        if not model.plain_update:
             return "gSDE, delayed target updates and batch norm are not covered"
         if (
             not isinstance(actor.features_extractor, FlattenExtractor)

@@ -71,8 +71,14 @@ class ResumableSAC(SAC):
             learning_starts = 0
         return super()._sample_action(learning_starts, action_noise, n_envs)
 
+    @property
+    def plain_update(self) -> bool:
+        """Whether `train`'s own update covers this model: no gSDE, target updates every step,
+        no batch-norm statistics (otherwise SB3's update runs, without actor terms)."""
+        return not (self.use_sde or self.target_update_interval != 1 or self.batch_norm_stats)
+
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if self.use_sde or self.target_update_interval != 1 or self.batch_norm_stats:
+        if not self.plain_update:
             if self.actor_terms:
                 raise ValueError("actor terms need SAC without gSDE, delayed targets, batch norm")
             return super().train(gradient_steps, batch_size)  # the cases this update leaves out
