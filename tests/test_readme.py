@@ -38,12 +38,18 @@ TINY = {
 }
 
 
+def commands(after: str = "") -> list[str]:
+    """The command lines, without comments, of the first bash block after ``after`` in the
+    README."""
+    text = README.read_text()
+    block = text[text.index(after) :].split("```bash\n", 1)[1].split("```", 1)[0]
+    lines = [line.split("  #")[0].strip() for line in block.splitlines()]
+    return [line for line in lines if line and not line.startswith("#")]
+
+
 def examples(after: str = "Examples:\n\n") -> list[str]:
     """The armexp lines of the first bash block after ``after`` in the README."""
-    text = README.read_text()
-    block = text.split(after, 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
-    lines = [line.split("  #")[0].strip() for line in block.splitlines()]
-    return [line for line in lines if line.startswith("armexp ")]
+    return [line for line in commands(after) if line.startswith("armexp ")]
 
 
 def _shell(command: str, cwd: Path) -> None:
@@ -103,9 +109,7 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
 
 def _ui_block() -> list[str]:
     """The command lines of the bash block in the README's UI section."""
-    text = README.read_text().split("## Looking at runs", 1)[1]
-    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
-    return [line for line in block.splitlines() if line and not line.startswith("#")]
+    return commands(after="## Looking at runs")
 
 
 @pytest.mark.parametrize(
@@ -183,9 +187,9 @@ def test_the_ui_commands_serve_the_stores_runs_and_stop_on_ctrl_c(
 def test_ci_runs_the_readmes_test_line_and_both_lines_install_quietly() -> None:
     """`.ci/run` is the README's second line on a fresh clone; both set-up lines pass ``-q`` to
     pip, so the first one's output is armexp's own summary lines (one screen)."""
-    first, second = README.read_text().split("```bash\n", 1)[1].split("```", 1)[0].splitlines()
+    first, second = commands()
     ci = (README.parent / ".ci" / "run").read_text().strip().splitlines()[-1]
-    assert ci == second.split("  #")[0].strip()
+    assert ci == second
     for line in (first, second):
         assert "pip install -q -c constraints.txt " in line
     assert "armexp pipeline experiment=demo" in first
