@@ -27,7 +27,7 @@ import numpy as np
 
 from armexp.config import compose_config
 from armexp.sim import reference
-from armexp.stages.tune import build_objective, search_box
+from armexp.stages.tune import build_objective, search_space
 from armexp.tune import cuckoo_search
 
 
@@ -51,13 +51,13 @@ def plain_loop_seconds_per_eval(obj, candidates: np.ndarray) -> float:  # type: 
     return (time.perf_counter() - start) / len(candidates)
 
 
-def _search(obj, cfg, lower: np.ndarray, upper: np.ndarray):  # type: ignore[no-untyped-def]
+def _search(obj, cfg, space):  # type: ignore[no-untyped-def]
     t = cfg.tuner
     start = time.perf_counter()
     res = cuckoo_search(
-        obj, lower, upper, n_nests=int(t.n_nests), n_iterations=int(t.n_iterations),
-        pa=float(t.pa), beta=float(t.beta), step_scale=float(t.step_scale), seed=0,
-        abandon=str(t.abandon),
+        space.objective(obj), space.search_lower, space.search_upper, n_nests=int(t.n_nests),
+        n_iterations=int(t.n_iterations), pa=float(t.pa), beta=float(t.beta),
+        step_scale=float(t.step_scale), seed=0, abandon=str(t.abandon),
     )  # fmt: skip
     return res, time.perf_counter() - start
 
@@ -72,34 +72,35 @@ def main() -> None:
     base = [f"controller={args.controller}", f"tuner.n_iterations={iterations}"]
     cfg = compose_config(base)
     obj = build_objective(cfg)
-    _, lower, upper = search_box(cfg)
-    obj(np.atleast_2d(lower))  # compile outside the timing
+    space = search_space(cfg)
+    obj(space.gains(space.search_lower))  # compile outside the timing
 
     check_time = 0.0
     check = obj.stable
 
-    def timed_check(candidates: np.ndarray) -> np.ndarray:
+    def timed_check(candidates: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
         nonlocal check_time
         t0 = time.perf_counter()
-        out = check(candidates)
+        out = check(candidates, sigma)
         check_time += time.perf_counter() - t0
         return out
 
     obj.stable = timed_check  # type: ignore[method-assign]
-    res, wall = _search(obj, cfg, lower, upper)
+    res, wall = _search(obj, cfg, space)
     free = build_objective(
         compose_config(
             [*base, "tuner.objective.gain_margin=null", "tuner.objective.effort_weight=0",
              "tuner.objective.saturation_weight=0"]
         )
     )  # fmt: skip
-    res_free, wall_free = _search(free, cfg, lower, upper)
+    res_free, wall_free = _search(free, cfg, space)
     evals_per_s = res.n_evaluations / wall
     sc = obj.scenarios
     steps = res.n_evaluations * sc.q0.shape[0] * sc.n_steps
 
     rng = np.random.default_rng(0)
-    cands = rng.uniform(lower, upper, size=(args.plain_candidates, lower.size))
+    lower, upper = space.search_lower, space.search_upper
+    cands = space.gains(rng.uniform(lower, upper, size=(args.plain_candidates, lower.size)))
     plain = plain_loop_seconds_per_eval(obj, cands)
     ratio = plain * evals_per_s
 
@@ -108,7 +109,8 @@ def main() -> None:
     print(
         f"CSO {cfg.tuner.n_nests} nests x {iterations} iterations: {res.n_evaluations} "
         f"evaluations in {wall:.2f} s ({evals_per_s:.0f} evaluations/s, "
-        f"{steps / wall / 1e6:.2f} M controller steps/s), best W {res.best_f:.4g}"
+        f"{steps / wall / 1e6:.2f} M controller steps/s), best {res.best_f:.4g} "
+        f"({cfg.tuner.objective.criterion})"
     )
     print(
         f"plain per-candidate loop (numpy reference): {plain:.3f} s per evaluation "
@@ -120,7 +122,7 @@ def main() -> None:
         f"constraints: stability check {check_time:.2f} s of the {wall:.2f} s "
         f"({100 * check_time / wall:.0f} %); {int((~np.isfinite(res.scores)).sum())} of "
         f"{res.n_evaluations} candidates infeasible; without constraints the same budget took "
-        f"{wall_free:.2f} s (best W {res_free.best_f:.4g}), so they cost "
+        f"{wall_free:.2f} s (best {res_free.best_f:.4g}), so they cost "
         f"{wall - wall_free:+.2f} s"
     )
     if not args.quick:

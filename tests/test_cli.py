@@ -73,7 +73,8 @@ def test_a_stages_help_is_hydras_and_checks_nothing(
     monkeypatch.chdir(tmp_path)
     assert main(["simulate", "--help"]) == 0
     out = capsys.readouterr().out
-    assert "== Configuration groups ==" in out and "controller: pid" in out
+    assert "== Configuration groups ==" in out
+    assert "controller: computed_torque, computed_torque_schema, pid" in out
     assert list(tmp_path.iterdir()) == []  # no runs folder made
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from armexp.sim import reference
 from armexp.sim.angle_cache import ROTATE_MAX, series, turn
-from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
+from armexp.sim.controllers import ADAPTIVE, KINDS, PAPER_GAINS, PID, gain_vector
 from armexp.sim.dynamics import tip_position
 from armexp.sim.generic_path import run_generic
 from armexp.sim.model import THREE_LINK, TWO_LINK_PAPER, ArmModel, Plant, Uncertainty
@@ -66,12 +66,20 @@ CASES = [
         THREE_LINK, small_uncertainty(), "subsystem_adaptive", id="three_link-adaptive-custom"
     ),
     pytest.param(THREE_LINK, small_uncertainty(), "pid", id="three_link-pid-custom"),
+    pytest.param(
+        TWO_LINK_PAPER, Uncertainty.paper(), "computed_torque", id="two_link-computed_torque-paper"
+    ),
+    pytest.param(
+        THREE_LINK, small_uncertainty(), "computed_torque", id="three_link-computed_torque-custom"
+    ),
 ]
 
 
 def controller_gains(controller: str, n: int) -> np.ndarray:
     if controller == "subsystem_adaptive":
         return gain_vector(ADAPTIVE, PAPER_GAINS, n)
+    if controller == "computed_torque":  # M(q)-scaled: ω ≈ 40 rad/s
+        return gain_vector(KINDS[controller], {"kp": 1600.0, "ki": 4000.0, "kd": 80.0}, n)
     return gain_vector(PID, {"kp": [900.0, 700.0, 400.0][:n], "ki": 60.0, "kd": 80.0}, n)
 
 
@@ -85,8 +93,7 @@ def test_compiled_matches_reference(arm: ArmModel, unc: Uncertainty, controller:
     commands = switching_commands(n, 1000, seed=n)
     sim = Simulator(plant, controller, gains, q0=q0, qd0=qd0, seed=5, reference="hold")
     got = compiled_states(sim, commands)
-    kind = ADAPTIVE if controller == "subsystem_adaptive" else PID
-    want = reference.simulate(plant, kind, gains, q0, qd0, commands, 5)
+    want = reference.simulate(plant, KINDS[controller], gains, q0, qd0, commands, 5)
     assert np.isfinite(want).all()
     assert np.abs(got - want).max() < 1e-9
     assert sim.step_index == 1000 and sim.time == pytest.approx(1.0)
@@ -106,8 +113,9 @@ def test_compiled_ramp_matches_reference(arm: ArmModel, unc: Uncertainty, contro
     for cmd in blocks:
         sim.advance(cmd, HOLD)
         got.append(sim.state.copy())
-    kind = ADAPTIVE if controller == "subsystem_adaptive" else PID
-    want = reference.simulate(plant, kind, gains, q0, qd0, blocks, 5, hold=HOLD, ramp=True)
+    want = reference.simulate(
+        plant, KINDS[controller], gains, q0, qd0, blocks, 5, hold=HOLD, ramp=True
+    )
     assert np.isfinite(want).all()
     assert np.abs(np.array(got) - want[HOLD - 1 :: HOLD]).max() < 1e-9
 
@@ -306,7 +314,7 @@ def test_simulate_batch_equals_sequential_runs() -> None:
     offset = rng.uniform(-0.05, 0.05, (n_scen, n))
     commands = rng.uniform(-0.4, 0.4, (n_scen, n_cmd, n))
     seeds = np.array([3, 1, 4])
-    trace = np.zeros((3, n_scen, n_cmd * HOLD, 2 * n))
+    trace = np.zeros((3, n_scen, n_cmd * HOLD, 2 * n + 1))
     done = simulate_batch(
         ADAPTIVE, gains, q0, offset, commands, HOLD, plant.packed(), plant.dt, seeds, trace, True
     )
@@ -329,7 +337,7 @@ def test_simulate_batch_equals_sequential_runs() -> None:
                 parts.append(
                     np.hstack(
                         [rows[:, 1 : 1 + n] - rows[:, 1 + n : 1 + 2 * n],
-                         rows[:, 1 + 4 * n : 1 + 5 * n]]
+                         rows[:, 1 + 4 * n : 1 + 5 * n], rows[:, 1 + 5 * n : 2 + 5 * n]]
                     )
                 )  # fmt: skip
             assert np.abs(np.concatenate(parts) - trace[c, s]).max() <= 1e-12

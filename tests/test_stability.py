@@ -12,7 +12,7 @@ from omegaconf import DictConfig
 
 from armexp.builders import build_plant
 from armexp.cli import main
-from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
+from armexp.sim.controllers import ADAPTIVE, COMPUTED_TORQUE, PAPER_GAINS, PID, gain_vector
 from armexp.sim.model import TWO_LINK_PAPER, Plant, Uncertainty
 from armexp.sim.simulator import Simulator
 from armexp.sim.trajectory import trajectory_columns
@@ -30,9 +30,12 @@ def _plant(limit: np.ndarray | None = None) -> Plant:
     return Plant.build(TWO_LINK_PAPER, Uncertainty.paper(), torque_limit=limit)
 
 
-def _hold(plant: Plant, controller: str, gains: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """0.5 s regulating a 5 mrad offset at ``pose``; the logged rows."""
+def _hold(
+    plant: Plant, controller: str, gains: np.ndarray, pose: np.ndarray, rho0: float = 0.0
+) -> np.ndarray:
+    """0.5 s regulating a 5 mrad offset at ``pose`` (ρ̂ starting at ``rho0``); the logged rows."""
     sim = Simulator(plant, controller, gains, q0=pose + 0.005, qd0=pose, seed=0)
+    sim.state[4 * sim.n] = rho0
     rows = sim.advance(np.zeros(2), 500, log=True)
     assert rows is not None
     return rows
@@ -81,6 +84,54 @@ def test_prediction_agrees_with_the_compiled_loop() -> None:
     assert (stability.spectral_radius(ADAPTIVE, adaptive, lin) < 1).all()
     for pose in poses:
         assert not _chatters(_tau(_hold(plant, "subsystem_adaptive", adaptive, pose)))
+
+
+def _agrees(plant: Plant, controller: str, gains: np.ndarray, pose: np.ndarray, r: float,
+            rho0: float = 0.0) -> None:  # fmt: skip
+    rows = _hold(plant, controller, gains, pose, rho0)
+    tau = _tau(rows)
+    if r > 1.0:  # diverged within the 0.5 s, or chatters and grows
+        grows = len(rows) < 500 or (
+            _chatters(tau) and np.abs(tau[-50:]).max() > 10 * np.abs(tau[50:100]).max()
+        )
+        assert grows, (gains, pose)
+    else:
+        assert len(rows) == 500 and not _chatters(tau), (gains, pose)
+
+
+def test_computed_torque_prediction_agrees_with_the_compiled_loop() -> None:
+    """The computed-torque law acts through M(q), so its sampled loop is nearly the same at every
+    pose: a derivative gain past the 1 kHz limit chatters everywhere, one below settles."""
+    plant = _plant()
+    poses = np.array([[0.5, q2] for q2 in (0.0, 0.3, 2.0)])
+    lin = stability.linearise(plant, poses)
+    soft = np.array([1e4, 1e4, 1e5, 1e5, 1500.0, 1500.0])
+    hard = np.array([1e4, 1e4, 1e5, 1e5, 2500.0, 2500.0])
+    radius = stability.spectral_radius(COMPUTED_TORQUE, np.stack([soft, hard]), lin)
+    assert (radius[0] < 1).all() and (radius[1] > 1).all()
+    for gains, radii in ((soft, radius[0]), (hard, radius[1])):
+        for pose, r in zip(poses, radii, strict=True):
+            _agrees(plant, "computed_torque", gains, pose, float(r))
+
+
+def test_adaptive_term_prediction_agrees_with_the_compiled_loop() -> None:
+    """The adaptive law frozen at σ = b1 ρ̂ > 0: gains stable at ρ̂ = 0 become unstable once
+    a1 + σ passes the sampling limit, and the compiled loop started at that ρ̂ (with λ and γ so
+    small that ρ̂ stays put) chatters and grows; at a smaller σ it settles."""
+    plant = _plant()
+    poses = np.array([[0.5, 0.0], [0.5, 1.0]])
+    lin = stability.linearise(plant, poses)
+    gains = np.array([50.0, 2000.0, 1.0, 1e-9, 1.0])  # λ = γ = 1e-9
+    assert (stability.spectral_radius(ADAPTIVE, gains, lin) < 1).all()
+    for sigma in (1000.0, 3000.0):
+        radius = stability.spectral_radius(ADAPTIVE, gains, lin, sigma=np.array([sigma]))[0]
+        assert (radius > 1).all() if sigma == 3000.0 else (radius < 1).all()
+        for pose, r in zip(poses, radius, strict=True):
+            _agrees(plant, "subsystem_adaptive", gains, pose, float(r), rho0=sigma / gains[2])
+    # The margin shrinks with σ, and b1 = 0 (no adaptation) has the loop of σ = 0.
+    assert stability.gain_margin(ADAPTIVE, gains, lin, sigma=1000.0) < stability.gain_margin(
+        ADAPTIVE, gains, lin
+    )
 
 
 def test_gain_margin_and_integrators_without_gain() -> None:

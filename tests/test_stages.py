@@ -166,18 +166,44 @@ def test_tune_stage_logs_history_gains_and_artifacts(runs_dir: Path, tmp_path: P
     assert set(gains) == {"a0", "a1", "b1", "c1", "r1"}
     for k, v in gains.items():
         assert float(run.data.params[f"tuned.{k}"]) == pytest.approx(v)
-        lo, hi = yaml.safe_load(run.data.params[f"controller.bounds.{k}"])
-        assert lo <= v <= hi
+    # The search coordinates (a0, a1, λ = c1 r1, γ = b1² c1) lie in the box.
+    coordinates = {
+        "a0": gains["a0"], "a1": gains["a1"], "lambda": gains["c1"] * gains["r1"],
+        "gamma": gains["b1"] ** 2 * gains["c1"],
+    }  # fmt: skip
+    for k, v in coordinates.items():
+        lo, hi = (float(b) for b in yaml.safe_load(run.data.params[f"controller.bounds.{k}"]))
+        assert lo <= v * (1 + 1e-12) and v <= hi * (1 + 1e-12), k
+    assert run.data.params["tuner.objective.criterion"] == "itae"
+    assert run.data.tags["armexp.criterion"] == "itae"
+    assert float(run.data.tags["armexp.horizon"]) == 0.2
+    assert m["best_sigma_max"] >= 0
+    assert m["best_gain_margin_adapted"] <= m["best_gain_margin"] * (1 + 1e-6)  # bisection
     table = pd.read_csv(_artifact(run, "candidates.csv", runs_dir, tmp_path))
     assert len(table) == m["n_evaluations"]
     assert table.objective.min() == pytest.approx(m["best_objective"])
     assert _artifact(run, "convergence.png", runs_dir, tmp_path).stat().st_size > 1000
 
 
-def test_tune_bad_bound_exits_2(runs_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["tune", "controller.bounds.r1=[2,1]", f"tracking.runs_dir={runs_dir}"]) == 2
+@pytest.mark.parametrize(
+    ("override", "words"),
+    [
+        ("controller.bounds.gamma=[2,1]", ["controller.bounds.gamma=[2.0, 1.0]", "lower bound"]),
+        ("controller.bounds.gamma=[3,3]", ["controller.bounds.gamma=[3.0, 3.0]", "lower bound"]),
+        ("controller.bounds.a0=[0,10]", ["controller.bounds.a0=[0.0, 10.0]", "log space", "> 0"]),
+        ("tuner.objective.criterion=foo", ["tuner.objective.criterion='foo'", "gaing, itae, iae"]),
+        ("tuner.objective.horizon=0", ["tuner.objective.horizon=0", "> 0, or null"]),
+        ("+controller.bounds.b1=[1,2]", ["controller.bounds has b1", "a0, a1, lambda, gamma"]),
+    ],
+)
+def test_tune_bad_box_or_objective_exits_2(
+    override: str, words: list[str], runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["tune", override, f"tracking.runs_dir={runs_dir}"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "controller.bounds.r1" in err and "lower bound" in err
+    assert err.count("\n") == 0, err
+    for w in words:
+        assert w in err, (w, err)
 
 
 @pytest.mark.slow  # about 25 s; test_cli covers the same check at combination 67

@@ -9,9 +9,9 @@ import pytest
 from omegaconf import DictConfig
 
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
-from armexp.stages.tune import build_objective, search_box
+from armexp.stages.tune import build_objective, search_space
 from armexp.tune import cuckoo_search
-from armexp.tune.objective import ObjectiveSettings, criteria_from_errors
+from armexp.tune.objective import ObjectiveSettings, criteria_from_errors, resolved_horizon
 
 DT = 1e-3
 
@@ -25,7 +25,7 @@ def _criteria(trace: np.ndarray, settings: ObjectiveSettings | None = None):  # 
 def test_criteria_of_a_first_order_decay() -> None:
     tau = 0.02
     t = np.arange(600) * DT
-    c = _criteria(np.exp(-t / tau))
+    c = _criteria(np.exp(-t / tau), ObjectiveSettings(criterion="gaing"))
     assert c.overshoot[0, 0, 0] == 0.0
     assert c.rise_time[0, 0, 0] == pytest.approx(tau * np.log(9), abs=2 * DT)
     assert c.settling_time[0, 0, 0] == pytest.approx(tau * np.log(50), abs=2 * DT)
@@ -66,24 +66,82 @@ def test_absurd_gains_score_inf_without_crashing(compose: Callable[..., DictConf
 def test_tuned_adaptive_gains_beat_the_papers(compose: Callable[..., DictConfig]) -> None:
     cfg = compose("tuner.objective.n_scenarios=4", "tuner.objective.horizon=0.3")
     obj = build_objective(cfg)
-    _, lower, upper = search_box(cfg)
+    space = search_space(cfg)
+    lower, upper = space.search_lower, space.search_upper
     paper = obj(gain_vector(ADAPTIVE, PAPER_GAINS, 2)[None])[0]
-    res = cuckoo_search(obj, lower, upper, n_nests=10, n_iterations=30, seed=1)
+    res = cuckoo_search(
+        space.objective(obj), lower, upper, n_nests=10, n_iterations=30, seed=1, step_scale=0.3
+    )
     assert res.best_f <= paper
     assert np.all((res.best_x >= lower) & (res.best_x <= upper))
+    best = space.gains(res.best_x)[0]
+    assert obj(best[None])[0] == res.best_f
 
 
 def test_tuned_pid_is_stable_on_every_scenario(compose: Callable[..., DictConfig]) -> None:
     cfg = compose("controller=pid", "tuner.objective.n_scenarios=4", "tuner.objective.horizon=0.4")
     obj = build_objective(cfg)
     assert obj.kind == PID
-    _, lower, upper = search_box(cfg)
-    res = cuckoo_search(obj, lower, upper, n_nests=10, n_iterations=30, seed=1)
-    crit = obj.criteria(res.best_x[None])
+    space = search_space(cfg)
+    res = cuckoo_search(
+        space.objective(obj), space.search_lower, space.search_upper, n_nests=10,
+        n_iterations=30, seed=1, step_scale=0.3,
+    )  # fmt: skip
+    best = space.gains(res.best_x)
+    crit = obj.criteria(best)
     assert not crit.diverged.any()
-    trace, _ = obj.simulate(res.best_x[None])
+    trace, _ = obj.simulate(best)
     err = trace[..., :2]  # e1; the torque follows
     offset = obj.scenarios.offset
     # bounded error: never more than twice the initial offset, and well inside it at the end
     assert np.abs(err).max() <= 2 * np.abs(offset).max()
     assert np.abs(err[:, :, -100:, :]).max() < 0.2 * np.abs(offset).max()
+
+
+def test_itae_and_iae_against_hand_computed_cases() -> None:
+    """ε = 1 until 0.1 s, then 0.5 until 0.3 s, then 0 (a staircase): IAE = 0.1 + 0.1 = 0.2 s and
+    ITAE = ∫₀^0.1 t dt + 0.5 ∫_0.1^0.3 t dt = 0.005 + 0.02 = 0.025 s², as Riemann sums on the
+    1 ms grid (t = k dt, left points)."""
+    k = np.arange(400)
+    trace = np.where(k < 100, 1.0, np.where(k < 300, 0.5, 0.0))
+    t = k * DT
+    c = _criteria(trace, ObjectiveSettings(criterion="itae", effort_weight=0.0))
+    assert c.iae[0, 0, 0] == pytest.approx(0.2, abs=1e-12)
+    assert c.itae[0, 0, 0] == pytest.approx(float((t * trace).sum() * DT), rel=1e-12)
+    assert c.itae[0, 0, 0] == pytest.approx(0.025, abs=0.5 * DT)  # the integral, to the grid
+    assert c.score[0] == pytest.approx(c.itae[0, 0, 0])
+    iae = _criteria(trace, ObjectiveSettings(criterion="iae"))
+    assert iae.score[0] == pytest.approx(0.2)
+    # A negative error (overshoot) counts by its magnitude.
+    assert _criteria(-trace, ObjectiveSettings(criterion="itae")).score[0] == pytest.approx(
+        c.score[0]
+    )
+
+
+def test_the_criterion_picks_the_score_and_the_horizon_defaults_follow_it() -> None:
+    t = np.arange(600) * DT
+    trace = np.exp(-t / 0.05)
+    scores = {k: _criteria(trace, ObjectiveSettings(criterion=k)) for k in ("gaing", "itae")}
+    assert scores["gaing"].score[0] == pytest.approx(scores["gaing"].criterion[0])
+    assert scores["itae"].score[0] == pytest.approx(0.05**2, rel=0.05)  # ∫ t e^{-t/τ} = τ²
+    assert resolved_horizon("gaing", None) == 0.6
+    assert resolved_horizon("itae", None) == resolved_horizon("iae", None) == 1.5
+    assert resolved_horizon("gaing", 2.0) == 2.0
+    with pytest.raises(ValueError, match="criterion=foo"):
+        resolved_horizon("foo", None)
+
+
+def test_effort_penalty_scales_the_criterion() -> None:
+    """score = J (1 + effort_weight P + saturation_weight L): a relative penalty."""
+    trace = np.exp(-np.arange(600) * DT / 0.05)
+    err = (0.05 * trace)[None, None, :, None]
+    torque = np.full_like(err, 50.0)
+    torque[..., 400:, :] = 100.0  # at the limit over the last 200 of the 300 tracked steps
+    settings = ObjectiveSettings(criterion="itae", effort_weight=0.1, saturation_weight=1.0)
+    c = criteria_from_errors(
+        err, np.array([[0.05]]), DT, settings, np.array([[600]]), torque=torque,
+        limit=np.array([100.0]),
+    )  # fmt: skip
+    assert c.peak_ratio[0] == pytest.approx(1.0)
+    assert c.time_at_limit[0] == pytest.approx(200 / 300)
+    assert c.score[0] == pytest.approx(c.criterion[0] * (1 + 0.1 + 200 / 300))

@@ -286,12 +286,19 @@ def _cross_checks(cfg: DictConfig) -> None:
     ctrl = cfg.get("controller")
     if ctrl is None or OmegaConf.is_missing(cfg, "controller"):
         return
-    if ctrl.name == "pid":
+    if ctrl.name in ("pid", "computed_torque"):
         for key in ("kp", "ki", "kd"):
             _need_len(f"controller.gains.{key}", ctrl.gains[key], n)
+    tuner = cfg.get("tuner")
+    log_space = tuner is not None and not OmegaConf.is_missing(cfg, "tuner") and tuner.log_space
     for name, box in ctrl.bounds.items():
         if len(box) != 2:
             raise fail(f"controller.bounds.{name}", list(box), "give [lower, upper]")
+        if log_space and not box[0] > 0:
+            raise ConfigError(
+                f"controller.bounds.{name}={list(box)} is not allowed: the search is in log "
+                "space (tuner.log_space=true), so both bounds must be > 0."
+            )
         if not box[0] < box[1]:
             raise ConfigError(
                 f"controller.bounds.{name}={list(box)} is not allowed: the lower bound "
@@ -305,7 +312,6 @@ def _cross_checks(cfg: DictConfig) -> None:
     env = cfg.get("env")
     if env is not None and not OmegaConf.is_missing(cfg, "env"):
         _need_whole_periods("env.action_period", float(env.action_period), dt)
-    tuner = cfg.get("tuner")
     if tuner is not None and not OmegaConf.is_missing(cfg, "tuner"):
         _need_whole_periods(
             "tuner.objective.switch_period", float(tuner.objective.switch_period), dt

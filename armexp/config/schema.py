@@ -88,10 +88,20 @@ class PIDGains:
 
 
 @dataclass
+class ComputedTorqueGains:
+    """Per-joint gains of τ = M(q)(q̈_d − kp e1 − ki ∫e1 − kd e2)."""
+
+    kp: list[float] = checked(factory=list, check=each(nonnegative()))
+    ki: list[float] = checked(factory=list, check=each(nonnegative()))
+    kd: list[float] = checked(factory=list, check=each(nonnegative()))
+
+
+@dataclass
 class ControllerConfig:
     name: str = MISSING
     dt: float = checked(0.001, _pos)
-    #: CSO search box per gain: ``{gain: [lower, upper]}`` (PID gains per joint: kp_1, …).
+    #: CSO search box per search coordinate: ``{name: [lower, upper]}`` (the adaptive law:
+    #: a0, a1, lambda, gamma; PID and computed torque: kp_1, …, kd_n).
     bounds: dict[str, list[float]] = field(default_factory=dict)
 
 
@@ -105,6 +115,12 @@ class AdaptiveControllerConfig(ControllerConfig):
 class PIDControllerConfig(ControllerConfig):
     name: str = checked("pid", one_of("pid"))
     gains: PIDGains = field(default_factory=PIDGains)
+
+
+@dataclass
+class ComputedTorqueControllerConfig(ControllerConfig):
+    name: str = checked("computed_torque", one_of("computed_torque"))
+    gains: ComputedTorqueGains = field(default_factory=ComputedTorqueGains)
 
 
 # ---------------------------------------------------------------------------------- scenario
@@ -129,10 +145,14 @@ class ScenarioConfig:
 # ------------------------------------------------------------------------------------ tuner
 @dataclass
 class ObjectiveConfig:
-    """The CSO objective (docs/design.md §5): Gaing's W over seeded reference scenarios."""
+    """The CSO objective (docs/design.md §5): a criterion of the tracking error over seeded
+    reference scenarios, with the stability and effort constraints."""
 
+    #: gaing: the paper's W (Gaing 2004); itae, iae: integral criteria (`armexp.tune.objective`).
+    criterion: str = checked("itae", one_of("gaing", "itae", "iae"))
+    #: The scenarios' length in s; null: the criterion's own (gaing 0.6, itae and iae 1.5).
+    horizon: float | None = checked(None, or_null(_pos))
     n_scenarios: int = checked(8, at_least(1))
-    horizon: float = checked(0.6, _pos)
     switch_period: float = checked(0.03, _pos)
     offset: float = checked(0.05, _pos)
     seed: int = checked(2024, at_least(0))
@@ -167,6 +187,8 @@ class TunerConfig:
     #: (Algorithm 2 line 9); "per_component" rebuilds each component with probability P_a.
     abandon: str = checked("per_component", one_of("worst", "per_component"))
     seed: int = checked(0, at_least(0))
+    #: Search log10 of the coordinates in controller.bounds (each bound must then be > 0).
+    log_space: bool = True
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
 
@@ -448,6 +470,7 @@ SCHEMAS: dict[str, type] = {
     "robot/robot_schema": RobotConfig,
     "controller/subsystem_adaptive_schema": AdaptiveControllerConfig,
     "controller/pid_schema": PIDControllerConfig,
+    "controller/computed_torque_schema": ComputedTorqueControllerConfig,
     "scenario/scenario_schema": ScenarioConfig,
     "tuner/tuner_schema": TunerConfig,
     "agent/agent_schema": AgentConfig,

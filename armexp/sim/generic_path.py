@@ -101,10 +101,13 @@ def run_generic(
     ss = work[o + 13 * n : o + 14 * n]
     ext = work[o + 14 * n : o + 17 * n].reshape((3, n))
     rot = work[o + 17 * n : o + 21 * n].reshape((4, n))
+    ddqd = work[o + 21 * n : o + 22 * n]
     rotations(dist, dt, rot)
     h = dt
     record = log.shape[0] > 0
     tracing = trace.shape[0] > 0
+    trace_rho = trace.shape[1] > 2 * n
+    inv_h = 1.0 / dt
     steps = 0
     for ci in range(commands.shape[0]):
         cmd = commands[ci]
@@ -117,6 +120,8 @@ def run_generic(
             if tracing:
                 for i in range(n):
                     trace[steps, i] = state[i] - state[2 * n + i]
+                if trace_rho:
+                    trace[steps, 2 * n] = state[4 * n]
             anchor = (k & ANCHOR_MASK) == 0
             q = state[0:n]
             v = state[n : 2 * n]
@@ -134,7 +139,9 @@ def run_generic(
             base_dist(t, anchor, dist, dslots)
             disturbance(key, k, dist, rot, dslots, ext)
             mass_and_bias_cs(cth, sth, om, weights, gcoef, mass, bias)
-            rho_dot = control(kind, gains, state, dqd, mass, tau_limit, tau, e1, y2)
+            for i in range(n):
+                ddqd[i] = (dqd_end[i] - dqd[i]) * inv_h
+            rho_dot = control(kind, gains, state, dqd, ddqd, mass, tau_limit, tau, e1, y2)
             for i in range(n):
                 rhs[i] = tau[i] - bias[i]
                 xs[i] = q[i]

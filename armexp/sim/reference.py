@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from armexp.sim.controllers import ADAPTIVE
+from armexp.sim.controllers import ADAPTIVE, PID
 from armexp.sim.model import SOURCE_Q, Array, Plant
 from armexp.sim.noise import uniform_numpy
 from armexp.sim.step import DIVERGENCE_SPEED
@@ -59,8 +59,9 @@ def control(
     dqd: Array,
     integral: Array,
     rho: float,
+    ddqd: Array | None = None,
 ) -> tuple[Array, float]:
-    """τ and ρ̂' (Algorithm 3), or the PID torque and 0."""
+    """τ and ρ̂' (Algorithm 3), or the PID's or computed-torque law's torque and 0."""
     n = q.size
     e1 = q - qd
     e2 = dq - dqd
@@ -71,9 +72,14 @@ def control(
         m = mass_matrix(plant, q)
         tau = -0.5 * (a1 + b1 * rho) * (m @ y2) - m @ y1
         rho_dot = -c1 * r1 * rho + 0.5 * b1 * c1 * float(y2 @ y2)
-    else:
+    elif kind == PID:
         kp, ki, kd = gains[:n], gains[n : 2 * n], gains[2 * n :]
         tau = -(kp * e1 + ki * integral + kd * e2)
+        rho_dot = 0.0
+    else:
+        kp, ki, kd = gains[:n], gains[n : 2 * n], gains[2 * n :]
+        acc = np.zeros(n) if ddqd is None else ddqd
+        tau = mass_matrix(plant, q) @ (acc - kp * e1 - ki * integral - kd * e2)
         rho_dot = 0.0
     return np.clip(tau, -plant.torque_limit, plant.torque_limit), rho_dot
 
@@ -115,7 +121,9 @@ def simulate(
         dqd = start[k]
         u = noise[k]
         t = k * h
-        tau, rho_dot = control(plant, kind, gains, q, dq, qd, dqd, integral, rho)
+        tau, rho_dot = control(
+            plant, kind, gains, q, dq, qd, dqd, integral, rho, (end[k] - dqd) / h
+        )
         e1 = q - qd
         k1v, k1a = dq, acceleration(plant, q, dq, tau, t, u)
         k2v = dq + 0.5 * h * k1a

@@ -55,7 +55,8 @@ def run_commands(
     The reference q̇_d follows each command through `reference_velocity` (``ramp`` or hold), starting
     from the previous command kept in ``work``. Row s of ``log`` (when it has rows) gets the
     logged quantities of the s-th step, row s of ``trace`` (when it has rows) gets e1 at that
-    step's start and the torque applied during it (2n columns). Returns (steps run, diverged);
+    step's start and the torque applied during it (2n columns), and ρ̂ at the step's start when
+    it has a column 2n. Returns (steps run, diverged);
     a diverging step is run and counted, and ends the call.
     """
     if commands.shape[1] == 2:
@@ -117,9 +118,10 @@ def simulate_batch(
 
     gains (K, p); per scenario s: q_d(0) = q0[s], q(0) = q0[s] + offset[s], q̇(0) = q̇_d(0) = 0,
     and q̇_d follows commands[s] (C, n) through the reference generator (``ramp`` or hold), each
-    command for ``steps_per_command`` periods. Fills trace[K, S, C·steps_per_command, 2n] with
-    e1 = q − q_d at the start of every step and the torque applied during it (NaN after a
-    divergence) and returns the number of steps each run completed, shape (K, S).
+    command for ``steps_per_command`` periods. Fills trace[K, S, C·steps_per_command, 2n + 1]
+    with e1 = q − q_d and ρ̂ at the start of every step and the torque applied during it (columns
+    e1, τ, ρ̂; NaN after a divergence) and returns the number of steps each run completed, shape
+    (K, S).
     """
     n_cand = gains.shape[0]
     n_scen = q0.shape[0]
@@ -142,7 +144,7 @@ def simulate_batch(
             np.empty((0, 4 + 6 * n)), trace[c, s], ramp,
         )  # fmt: skip
         for kk in range(completed, total):
-            for i in range(2 * n):
+            for i in range(trace.shape[3]):
                 trace[c, s, kk, i] = np.nan
         done[c, s] = completed
     return done

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from armexp.sim.controllers import PID
+from armexp.sim.controllers import ADAPTIVE
 from armexp.sim.model import Array
 from armexp.sim.work import FASTMATH
 
@@ -51,10 +51,11 @@ def integrate_reference(state: Array, now: Array, end: Array, h: float, n: int) 
 def integrate_error(
     kind: int, state: Array, e1: Array, tau: Array, tau_limit: Array, h: float, n: int
 ) -> None:
-    """∫e1 dt by explicit Euler, with the PID's anti-windup: a joint whose torque is at the limit
-    does not integrate the error that would drive it further into saturation."""
+    """∫e1 dt by explicit Euler, with the integral laws' anti-windup (PID, computed torque): a
+    joint whose torque is at the limit does not integrate the error that would drive it further
+    into saturation."""
     for i in range(n):
-        if kind == PID and abs(tau[i]) >= tau_limit[i] and e1[i] * tau[i] < 0.0:
+        if kind != ADAPTIVE and abs(tau[i]) >= tau_limit[i] and e1[i] * tau[i] < 0.0:
             continue
         state[3 * n + i] += h * e1[i]
 

@@ -250,6 +250,7 @@ def run_two_link(
     y2 = work[sb + 6 : sb + 8]
     ext = work[sb + 8 : sb + 14].reshape((3, 2))
     rot = work[sb + 14 : sb + 22].reshape((4, 2))
+    ddqd = work[sb + 22 : sb + 24]
     rotations(dist, dt, rot)
     n_rows = f_terms.shape[0]
     m = min(n_rows, cap)
@@ -270,6 +271,8 @@ def run_two_link(
     h6 = dt / 6.0
     record = log.shape[0] > 0
     tracing = trace.shape[0] > 0
+    trace_rho = trace.shape[1] > 2 * n
+    inv_h = 1.0 / dt
     steps = 0
     for ci in range(commands.shape[0]):
         cmd = commands[ci]
@@ -282,6 +285,8 @@ def run_two_link(
             if tracing:
                 trace[steps, 0] = state[0] - state[4]
                 trace[steps, 1] = state[1] - state[5]
+                if trace_rho:
+                    trace[steps, 4] = state[8]
             q0 = state[0]
             q1 = state[1]
             v0 = state[2]
@@ -316,7 +321,9 @@ def run_two_link(
             mass[0, 1] = w11 + wc
             mass[1, 0] = w11 + wc
             mass[1, 1] = w11
-            rho_dot = control(kind, gains, state, dqd, mass, tau_limit, tau, e1, y2)
+            ddqd[0] = (dqd_end[0] - dqd[0]) * inv_h
+            ddqd[1] = (dqd_end[1] - dqd[1]) * inv_h
+            rho_dot = control(kind, gains, state, dqd, ddqd, mass, tau_limit, tau, e1, y2)
             tau0 = tau[0]
             tau1 = tau[1]
             kk0, kk1, p0, r0, p1, r1 = _solve_two(

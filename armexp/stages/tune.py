@@ -1,12 +1,19 @@
 """`armexp tune`: cuckoo search (Algorithm 2) of the configured controller's gains.
 
-Logs to one MLflow run: the best objective per iteration (metric history ``best_objective``),
-evaluations, wall time, the objective of the paper's published gains and of the configured gains
-on the same scenarios, the winning gains as params (``tuned.<gain>``) and as ``gains.yaml``
-(config form, ready for ``controller.gains``), their constraint figures (``best_gain_margin``
-over the pose grid, ``best_peak_torque``, ``best_time_at_limit``), the gains that ended on a
-bound of the search box (tag ``armexp.gains_on_bound``), every candidate (``candidates.csv``)
-and a convergence figure (``convergence.png``).
+The search runs over `armexp.tune.space.SearchSpace` (log10 of the coordinates in
+``controller.bounds`` with ``tuner.log_space``; the adaptive law over a0, a1, λ, γ) and scores each
+point by `armexp.tune.objective.TuningObjective` under ``tuner.objective.criterion``.
+
+Logs to one MLflow run: the tags ``armexp.criterion`` and ``armexp.horizon`` (the criterion and
+the scenarios' length in s), the best objective per iteration (metric history
+``best_objective``), evaluations, wall time, the objective of the paper's published gains and of
+the configured gains on the same scenarios, the winning gains as params (``tuned.<gain>``) and
+as ``gains.yaml`` (config form, ready for ``controller.gains``), their constraint figures
+(``best_gain_margin`` over the pose grid, ``best_gain_margin_adapted`` with the adaptive term at
+its peak ``best_sigma_max``, ``best_peak_torque``, ``best_time_at_limit``), the coordinates that
+ended on a bound of the search box in its own scale (tag ``armexp.gains_on_bound``), every
+candidate (``candidates.csv``: gains, and λ, γ for the adaptive law) and a convergence figure
+(``convergence.png``).
 """
 
 from __future__ import annotations
@@ -23,32 +30,61 @@ from omegaconf import DictConfig
 from armexp import console, tracking
 from armexp.builders import build_plant, controller_gains, controller_kind
 from armexp.config import ConfigError
-from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, gain_mapping, gain_names, gain_vector
+from armexp.sim.controllers import (
+    ADAPTIVE,
+    PAPER_GAINS,
+    adaptive_rates,
+    gain_mapping,
+    gain_names,
+    gain_vector,
+)
 from armexp.tune.cuckoo import CuckooResult, cuckoo_search
-from armexp.tune.objective import ObjectiveSettings, TuningObjective, make_scenarios
+from armexp.tune.objective import (
+    ObjectiveSettings,
+    TuningObjective,
+    make_scenarios,
+    resolved_horizon,
+)
+from armexp.tune.space import SearchSpace, coordinate_names
 from armexp.tune.stability import pose_grid
 
 FLUSH_EVERY = 25
+CRITERION_TAG = "armexp.criterion"
+HORIZON_TAG = "armexp.horizon"
 
 
-def search_box(cfg: DictConfig) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Gain names and their [lower, upper] from ``controller.bounds``."""
+def search_space(cfg: DictConfig) -> SearchSpace:
+    """The box of ``controller.bounds`` over the controller's search coordinates, searched in
+    log space with ``tuner.log_space``."""
     n = len(cfg.robot.lengths)
-    names = gain_names(controller_kind(cfg), n)
+    kind = controller_kind(cfg)
+    names = coordinate_names(kind, n)
     bounds = cfg.controller.bounds
     missing = [g for g in names if g not in bounds]
-    if missing:
+    extra = [g for g in bounds if g not in names]
+    if missing or extra:
+        what = f"lacks {', '.join(missing)}" if missing else f"has {', '.join(extra)}, unused"
         raise ConfigError(
-            f"controller.bounds lacks {', '.join(missing)}: give [lower, upper] for every gain of "
+            f"controller.bounds {what}: give [lower, upper] for exactly the search coordinates of "
             f"{cfg.controller.name} on a {n}-joint arm ({', '.join(names)})."
         )
     lower = np.array([float(bounds[g][0]) for g in names])
     upper = np.array([float(bounds[g][1]) for g in names])
-    return names, lower, upper
+    try:
+        return SearchSpace(kind, tuple(names), lower, upper, log=bool(cfg.tuner.log_space))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def objective_settings(cfg: DictConfig) -> ObjectiveSettings:
+    """``tuner.objective`` with its horizon resolved (the criterion's default when null)."""
+    fields = dict(cfg.tuner.objective)
+    fields["horizon"] = resolved_horizon(str(fields["criterion"]), fields["horizon"])
+    return ObjectiveSettings(**fields)
 
 
 def build_objective(cfg: DictConfig, kind: int | None = None) -> TuningObjective:
-    settings = ObjectiveSettings(**dict(cfg.tuner.objective))
+    settings = objective_settings(cfg)
     robot = cfg.robot
     plant = build_plant(cfg)
     lower = np.asarray(list(robot.joint_lower), dtype=np.float64)
@@ -66,19 +102,7 @@ def build_objective(cfg: DictConfig, kind: int | None = None) -> TuningObjective
     )
 
 
-def on_bound(names: list[str], x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> list[str]:
-    """The gains within 0.1 % of the box width from a bound, as ``name=lower|upper``."""
-    tol = 1e-3 * (upper - lower)
-    out = []
-    for g, v, lo, hi, t in zip(names, x, lower, upper, tol, strict=True):
-        if v - lo <= t:
-            out.append(f"{g}=lower")
-        elif hi - v <= t:
-            out.append(f"{g}=upper")
-    return out
-
-
-def _convergence_figure(result: CuckooResult, reference: dict[str, float]) -> Any:
+def _convergence_figure(result: CuckooResult, reference: dict[str, float], criterion: str) -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -100,7 +124,7 @@ def _convergence_figure(result: CuckooResult, reference: dict[str, float]) -> An
             ax.axhline(value, ls="--", color=f"C{i + 1}", label=label)
     ax.set_yscale("log")
     ax.set_xlabel("iteration")
-    ax.set_ylabel("objective W (Gaing)")
+    ax.set_ylabel(f"objective ({criterion})")
     ax.set_title("Cuckoo search convergence")
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -119,67 +143,110 @@ def _short(gains: dict[str, Any]) -> str:
     return " ".join(f"{k}={text(v)}" for k, v in gains.items())
 
 
+def _search(
+    cfg: DictConfig, space: SearchSpace, objective: TuningObjective
+) -> tuple[CuckooResult, float]:
+    """Cuckoo search over ``space`` with ``objective``, its best objective per iteration logged
+    as it goes (kept when interrupted); the result and the wall time."""
+    tuner = cfg.tuner
+    pending: list[float] = []
+    logged = 0
+    bar = console.progress_bar(cfg.tune.progress, int(tuner.n_iterations), "tune", "it")
+
+    def flush() -> None:
+        nonlocal logged
+        if pending:
+            tracking.log_metric_history("best_objective", pending, start_step=logged + 1)
+            logged += len(pending)
+            pending.clear()
+
+    def on_iteration(iteration: int, partial: CuckooResult) -> None:
+        pending.append(float(partial.best_f))
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(best=f"{partial.best_f:.4g}")
+        if len(pending) >= FLUSH_EVERY:
+            flush()
+
+    start = time.perf_counter()
+    try:
+        result = cuckoo_search(
+            space.objective(objective),
+            space.search_lower,
+            space.search_upper,
+            n_nests=int(tuner.n_nests),
+            n_iterations=int(tuner.n_iterations),
+            pa=float(tuner.pa),
+            beta=float(tuner.beta),
+            step_scale=float(tuner.step_scale),
+            abandon=str(tuner.abandon),
+            seed=int(tuner.seed),
+            callback=on_iteration,
+        )
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    finally:
+        wall = time.perf_counter() - start
+        flush()  # keep the history logged so far, even when interrupted
+        if bar is not None:
+            bar.close()
+    return result, wall
+
+
+def _candidates(space: SearchSpace, result: CuckooResult, n: int) -> pd.DataFrame:
+    """Every evaluated candidate: its gains (and λ, γ for the adaptive law) and objective."""
+    gains = space.gains(result.evaluations)
+    table = pd.DataFrame(gains, columns=gain_names(space.kind, n))
+    if space.kind == ADAPTIVE:
+        rates = np.array([adaptive_rates(g) for g in gains]).reshape(-1, 2)
+        table["lambda"], table["gamma"] = rates[:, 0], rates[:, 1]
+    table.insert(0, "iteration", result.iterations)
+    table["objective"] = result.scores
+    return table
+
+
+def _best_metrics(
+    objective: TuningObjective, space: SearchSpace, best: np.ndarray
+) -> tuple[dict[str, float], list[str]]:
+    """The winning gains' criteria and constraint figures, and the coordinates on a bound."""
+    crit = objective.criteria(best[None])
+    sigma = float(crit.sigma_max[0])
+    bound_hits = space.on_bound(best)
+    metrics = {
+        "best_criterion": float(crit.criterion[0]),
+        "best_overshoot": float(crit.overshoot.mean()),
+        "best_rise_time_s": float(crit.rise_time.mean()),
+        "best_settling_time_s": float(crit.settling_time.mean()),
+        "best_steady_state_error": float(crit.steady_state_error.mean()),
+        "best_itae": float(crit.itae.sum(axis=-1).mean()),
+        "best_gain_margin": objective.gain_margin(best),
+        "best_sigma_max": sigma,
+        "best_gain_margin_adapted": objective.gain_margin(best, sigma=sigma),
+        "best_peak_torque": float(crit.peak_torque[0]),
+        "best_time_at_limit": float(crit.time_at_limit[0]),
+        "best_gains_on_bound": float(len(bound_hits)),
+    }
+    return metrics, bound_hits
+
+
 def run(cfg: DictConfig) -> tracking.StageResult:
-    names, lower, upper = search_box(cfg)
+    space = search_space(cfg)
+    settings = objective_settings(cfg)
+    criterion = settings.criterion
     with tracking.stage_run(cfg, "tune", run_name=cfg.tune.run_name) as active:
+        mlflow.set_tags({CRITERION_TAG: criterion, HORIZON_TAG: f"{settings.horizon:g}"})
         objective = build_objective(cfg)
         n = len(cfg.robot.lengths)
         kind = objective.kind
-        reference: dict[str, float] = {}
         paper = build_objective(cfg, kind=ADAPTIVE) if kind != ADAPTIVE else objective
-        reference["objective_paper_gains"] = float(
-            paper(gain_vector(ADAPTIVE, PAPER_GAINS, n)[None])[0]
-        )
-        reference["objective_config_gains"] = float(objective(controller_gains(cfg)[None])[0])
+        reference = {
+            "objective_paper_gains": float(paper(gain_vector(ADAPTIVE, PAPER_GAINS, n)[None])[0]),
+            "objective_config_gains": float(objective(controller_gains(cfg)[None])[0]),
+        }
         mlflow.log_metrics({k: v for k, v in reference.items() if np.isfinite(v)})
 
-        tuner = cfg.tuner
-        pending: list[float] = []
-        logged = 0
-        bar = console.progress_bar(cfg.tune.progress, int(tuner.n_iterations), "tune", "it")
-
-        def flush() -> None:
-            nonlocal logged
-            if pending:
-                tracking.log_metric_history("best_objective", pending, start_step=logged + 1)
-                logged += len(pending)
-                pending.clear()
-
-        def on_iteration(iteration: int, partial: CuckooResult) -> None:
-            pending.append(float(partial.best_f))
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(best=f"{partial.best_f:.4g}")
-            if len(pending) >= FLUSH_EVERY:
-                flush()
-
-        start = time.perf_counter()
-        try:
-            result = cuckoo_search(
-                objective,
-                lower,
-                upper,
-                n_nests=int(tuner.n_nests),
-                n_iterations=int(tuner.n_iterations),
-                pa=float(tuner.pa),
-                beta=float(tuner.beta),
-                step_scale=float(tuner.step_scale),
-                abandon=str(tuner.abandon),
-                seed=int(tuner.seed),
-                callback=on_iteration,
-            )
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
-        finally:
-            wall = time.perf_counter() - start
-            flush()  # keep the history logged so far, even when interrupted
-            if bar is not None:
-                bar.close()
-
-        table = pd.DataFrame(result.evaluations, columns=names)
-        table.insert(0, "iteration", result.iterations)
-        table["objective"] = result.scores
-        tracking.log_dataframe(table, "candidates.csv")
+        result, wall = _search(cfg, space, objective)
+        tracking.log_dataframe(_candidates(space, result, n), "candidates.csv")
         if not np.isfinite(result.best_f):
             raise ConfigError(
                 f"tune found no feasible gains for {cfg.controller.name}: all "
@@ -187,35 +254,29 @@ def run(cfg: DictConfig) -> tracking.StageResult:
                 f"pose (tuner.objective.gain_margin={cfg.tuner.objective.gain_margin}) or "
                 "diverged; narrow the gains' upper bounds or raise the budget."
             )
-        crit = objective.criteria(result.best_x[None])
-        bound_hits = on_bound(names, result.best_x, lower, upper)
+        best = space.gains(result.best_x)[0]
+        metrics, bound_hits = _best_metrics(objective, space, best)
+        metrics.update(
+            n_evaluations=float(result.n_evaluations),
+            wall_time_s=wall,
+            evaluations_per_s=result.n_evaluations / wall if wall > 0 else float("nan"),
+        )
         # best_objective's last history point is the final value; not logged again here.
-        metrics = {
-            "n_evaluations": float(result.n_evaluations),
-            "wall_time_s": wall,
-            "evaluations_per_s": result.n_evaluations / wall if wall > 0 else float("nan"),
-            "best_overshoot": float(crit.overshoot.mean()),
-            "best_rise_time_s": float(crit.rise_time.mean()),
-            "best_settling_time_s": float(crit.settling_time.mean()),
-            "best_steady_state_error": float(crit.steady_state_error.mean()),
-            "best_gain_margin": objective.gain_margin(result.best_x),
-            "best_peak_torque": float(crit.peak_torque[0]),
-            "best_time_at_limit": float(crit.time_at_limit[0]),
-            "best_gains_on_bound": float(len(bound_hits)),
-        }
         mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
         mlflow.set_tag("armexp.gains_on_bound", ", ".join(bound_hits) or "none")
-        mapping = gain_mapping(kind, result.best_x, n)
-        mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, result.best_x, strict=True)})
+        mapping = gain_mapping(kind, best, n)
+        names = gain_names(kind, n)
+        mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, best, strict=True)})
         mlflow.log_text(yaml.safe_dump(mapping, sort_keys=False), "gains.yaml")
-        fig = _convergence_figure(result, reference)
+        fig = _convergence_figure(result, reference, criterion)
         mlflow.log_figure(fig, "convergence.png")
         import matplotlib.pyplot as plt
 
         plt.close(fig)  # a sweep or study tunes many times in one process
 
         print(
-            f"tune: run {active.info.run_id} | {cfg.controller.name} | best W {result.best_f:.4g} "
+            f"tune: run {active.info.run_id} | {cfg.controller.name} | {criterion} over "
+            f"{settings.horizon:g} s: best {result.best_f:.4g} "
             f"(paper gains {reference['objective_paper_gains']:.4g}) | gains {_short(mapping)} | "
             f"{result.n_evaluations} evaluations, {wall:.1f} s"
             + (f" | on a bound: {', '.join(bound_hits)}" if bound_hits else "")

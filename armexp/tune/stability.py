@@ -14,8 +14,12 @@ linearise to
 
 * PID: τ = −Kp e − Ki z − Kd ė, z⁺ = z + dt·e (the core's Euler integrator; a joint with ki = 0
   has no integrator in the loop);
-* adaptive (Algorithm 3 with ρ̂ = 0): τ = −M(q*)[(¼ a0 a1 + 1) e + ½ a1 ė], and ρ̂⁺ = (1 −
-  dt c1 r1) ρ̂.
+* computed torque: τ = −M(q*)(Kp e + Ki z + Kd ė), the same integrator (q̈_d = 0 at rest);
+* adaptive (Algorithm 3 with the adaptive term σ = b1 ρ̂ frozen at a value ≥ 0):
+  τ = −M(q*)[(¼ a0 (a1 + σ) + 1) e + ½ (a1 + σ) ė], and ρ̂⁺ = (1 − dt c1 r1) ρ̂. σ = 0 is the loop
+  at the start of every run; the tuner also checks the largest σ its scenarios reach
+  (`armexp.tune.objective`), so a candidate whose adaptation raises the loop gain past the
+  sampling limit is rejected.
 
 The loop is stable at q* when the spectral radius of its step matrix is below 1. A candidate
 meets the constraint when its loop with every gain multiplied by ``gain_margin`` is stable at
@@ -34,7 +38,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from armexp.sim import reference as dynamics
-from armexp.sim.controllers import ADAPTIVE
+from armexp.sim.controllers import ADAPTIVE, PID
 from armexp.sim.model import Array, Plant
 
 _FD_STEP = 1e-6
@@ -101,33 +105,44 @@ def linearise(plant: Plant, poses: Array) -> Linearised:
     )
 
 
-def _feedback(kind: int, gains: Array, lin: Linearised) -> tuple[Array, Array]:
-    """State feedback τ = −K [e, ė] − Ki z: K (C, P, n, 2n) and the integral gains Ki (C, n)."""
+def _feedback(
+    kind: int, gains: Array, lin: Linearised, sigma: Array | None = None
+) -> tuple[Array, Array, np.ndarray]:
+    """State feedback τ = −K [e, ė] − Ki z: K (C, P, n, 2n), Ki (C, P, n, n), and which joints
+    have an integrator (C, n)."""
     n = lin.mass.shape[1]
     c = gains.shape[0]
     p = lin.mass.shape[0]
     if kind == ADAPTIVE:
-        a0, a1 = gains[:, 0], gains[:, 1]
+        a0 = gains[:, 0]
+        a1 = gains[:, 1] + (0.0 if sigma is None else np.asarray(sigma, float))
         kp = 0.25 * a0 * a1 + 1.0
         kd = 0.5 * a1
         k = np.concatenate(
             [kp[:, None, None, None] * lin.mass[None], kd[:, None, None, None] * lin.mass[None]],
             axis=-1,
         )
-        return k, np.zeros((c, n))
+        return k, np.zeros((c, p, n, n)), np.zeros((c, n), bool)
     kp, ki, kd = gains[:, :n], gains[:, n : 2 * n], gains[:, 2 * n :]
-    k = np.zeros((c, p, n, 2 * n))
+    diagonal = np.zeros((c, p, n, 2 * n))
     idx = np.arange(n)
-    k[:, :, idx, idx] = kp[:, None, :]
-    k[:, :, idx, n + idx] = kd[:, None, :]
-    return k, ki
+    diagonal[:, :, idx, idx] = kp[:, None, :]
+    diagonal[:, :, idx, n + idx] = kd[:, None, :]
+    integral = np.zeros((c, p, n, n))
+    integral[:, :, idx, idx] = ki[:, None, :]
+    integrates = np.asarray(ki > 0)
+    if kind == PID:
+        return diagonal, integral, integrates
+    # Computed torque: the same gains acting through M(q*).
+    return lin.mass[None] @ diagonal, lin.mass[None] @ integral, integrates
 
 
-def spectral_radius(kind: int, gains: Array, lin: Linearised) -> Array:
-    """Spectral radius (C, P) of the sampled closed loop of each gain vector at each pose."""
+def spectral_radius(kind: int, gains: Array, lin: Linearised, sigma: Array | None = None) -> Array:
+    """Spectral radius (C, P) of the sampled closed loop of each gain vector at each pose (the
+    adaptive law with its adaptive term frozen at ``sigma`` (C,), default 0)."""
     gains = np.atleast_2d(np.asarray(gains, float))
     n = lin.mass.shape[1]
-    k, ki = _feedback(kind, gains, lin)
+    k, ki, integrates = _feedback(kind, gains, lin, sigma)
     c, p = k.shape[:2]
     top = lin.phi[None] - lin.gamma[None] @ k  # (C, P, 2n, 2n)
     if kind == ADAPTIVE:
@@ -137,17 +152,18 @@ def spectral_radius(kind: int, gains: Array, lin: Linearised) -> Array:
         return np.maximum(radius, rho[:, None])
     loop = np.zeros((c, p, 3 * n, 3 * n))
     loop[..., : 2 * n, : 2 * n] = top
-    loop[..., : 2 * n, 2 * n :] = -lin.gamma[None] * ki[:, None, None, :]
+    loop[..., : 2 * n, 2 * n :] = -lin.gamma[None] @ ki
     idx = np.arange(n)
     loop[..., 2 * n + idx, idx] = lin.dt
     # A joint without integral gain has a z that only listens: its eigenvalue is the diagonal,
     # 1 for the integrator, so it is set to 0 to leave that joint's integrator out.
-    loop[..., 2 * n + idx, 2 * n + idx] = (ki > 0).astype(float)[:, None, :]
+    loop[..., 2 * n + idx, 2 * n + idx] = integrates.astype(float)[:, None, :]
     return np.abs(np.linalg.eigvals(loop)).max(axis=-1)
 
 
 def scale_gains(kind: int, gains: Array, factor: float | Array) -> Array:
-    """Every gain multiplied by ``factor`` (adaptive: a0, a1, b1 — the loop's gains)."""
+    """Every gain multiplied by ``factor`` (adaptive: a0, a1, b1 — the loop's gains; its adaptive
+    term b1 ρ̂ scales with b1)."""
     gains = np.atleast_2d(np.asarray(gains, float)).copy()
     f = np.asarray(factor, float).reshape(-1, 1)
     if kind == ADAPTIVE:
@@ -156,26 +172,37 @@ def scale_gains(kind: int, gains: Array, factor: float | Array) -> Array:
     return gains * f
 
 
-def stable_with_margin(kind: int, gains: Array, lin: Linearised, margin: float) -> Array:
-    """Whether each candidate's loop, its gains × ``margin``, is stable at every pose (C,)."""
-    radius = spectral_radius(kind, scale_gains(kind, gains, margin), lin)
+def stable_with_margin(
+    kind: int, gains: Array, lin: Linearised, margin: float, sigma: Array | None = None
+) -> Array:
+    """Whether each candidate's loop, its gains × ``margin``, is stable at every pose (C,), with
+    the adaptive term at ``sigma`` × ``margin``."""
+    scaled = None if sigma is None else margin * np.asarray(sigma, float)
+    radius = spectral_radius(kind, scale_gains(kind, gains, margin), lin, scaled)
     return np.all(radius < 1.0, axis=1)
 
 
 def gain_margin(
-    kind: int, gains: Array, lin: Linearised, upper: float = 1e3, iterations: int = 40
+    kind: int,
+    gains: Array,
+    lin: Linearised,
+    upper: float = 1e3,
+    iterations: int = 40,
+    sigma: float | None = None,
 ) -> float:
     """The largest factor (up to ``upper``) by which every gain can be raised with the loop
-    still stable at every pose: bisection on a log scale; 0 when it is unstable as given."""
+    still stable at every pose (the adaptive term at ``sigma``): bisection on a log scale; 0
+    when it is unstable as given."""
     g = np.atleast_2d(np.asarray(gains, float))[:1]
-    if not stable_with_margin(kind, g, lin, 1.0)[0]:
+    s = None if sigma is None else np.array([sigma], float)
+    if not stable_with_margin(kind, g, lin, 1.0, s)[0]:
         return 0.0
-    if stable_with_margin(kind, g, lin, upper)[0]:
+    if stable_with_margin(kind, g, lin, upper, s)[0]:
         return upper
     lo, hi = 0.0, float(np.log(upper))
     for _ in range(iterations):
         mid = 0.5 * (lo + hi)
-        if stable_with_margin(kind, g, lin, float(np.exp(mid)))[0]:
+        if stable_with_margin(kind, g, lin, float(np.exp(mid)), s)[0]:
             lo = mid
         else:
             hi = mid
