@@ -47,10 +47,10 @@ COLUMNS = (
     ("Peak |τ| (N·m)", "max_torque", True, 1),
     ("Time at limit (s)", "time_at_limit", True, 3),
 )
-#: What the ablation compares: (header, key, paper tasks only, reached by both).
+#: What the ablation compares: (what, key, paper tasks only, reached by both).
 ABLATION = (
-    ("Tip RMS", "tip_rms_cm", False, True),
-    ("Time constant 1/λ", "time_constant", True, False),
+    ("tip RMS error", "tip_rms_cm", False, True),
+    ("time constant 1/λ", "time_constant", True, False),
 )
 
 
@@ -201,12 +201,12 @@ def _span(change: tuple[float, float, float]) -> str:
 def sentence(changes: dict[str, tuple[float, float, float]]) -> str:
     """One sentence: whether adaptation contributes, from the changes with adaptation off
     (positive: the error or the time constant grows without it)."""
-    said = " and ".join(
-        f"the {name.lower()} by {_span(c)}" for name, c in changes.items() if math.isfinite(c[0])
-    )
-    if not said:
+    parts = [f"{name} by {_span(c)}" for name, c in changes.items() if math.isfinite(c[0])]
+    if not parts:
         return "Adaptation: not measured (no episodes with both the law and its ablation)."
-    told = f"with adaptation off (b1 = 0) {said}"
+    told = f"with adaptation off (b1 = 0) the {parts[0]}".replace(" by ", " changes by ", 1)
+    if len(parts) > 1:
+        told += " and the " + " and the ".join(parts[1:])
     bounds = [c for c in changes.values() if math.isfinite(c[1])]
     if not bounds:
         return f"Adaptation's contribution is not judged (one seed, no CI): {told}."
@@ -233,15 +233,16 @@ def ablation(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
             shown: dict[str, Any] = {"Agent": names[agent]} if names else {}
             shown["Adaptation on / off"] = f"{on} / {off}"
             row: dict[str, Any] = {"agent": names.get(agent, ""), "on": on, "off": off}
-            for header, key, tasks_only, reached in ABLATION:
+            for what, key, tasks_only, reached in ABLATION:
+                header = what[0].upper() + what[1:]
                 a, b = paired(sub, key, on, off, tasks_only, reached)
-                changes[header] = _change(a, b)
+                changes[what] = _change(a, b)
                 shown[f"{header}: on / off"] = (
                     f"{number(float(stats.iqm(a)))} / {number(float(stats.iqm(b)))}"
                     if a.size else "–"
                 )  # fmt: skip
-                shown[f"{header}: change off vs on [95 % CI]"] = _span(changes[header])
-                point, low, high = changes[header]
+                shown[f"{header}: change off vs on [95 % CI]"] = _span(changes[what])
+                point, low, high = changes[what]
                 row.update({f"{key}_change": point, f"{key}_change_ci_low": low,
                             f"{key}_change_ci_high": high, f"{key}_episodes": a.shape[1]
                             if a.ndim == 2 else 0})  # fmt: skip
