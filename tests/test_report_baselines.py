@@ -195,6 +195,7 @@ def test_the_claim_check_has_one_verdict_per_claim_and_baseline(report: Path) ->
     assert "adaptive_gaing: policy and tuning (3 tuner seeds)" in covers
     md = _md(report, "claim_check")
     assert "pid_itae (pid, itae over 1.5 s)" in md and "consistent (the CI lies above 0" in md
+    assert "W then rewards the slowest rise" in md  # said wherever W was the criterion
 
 
 def test_the_controller_comparison_lists_every_label_with_its_role_and_tuning(

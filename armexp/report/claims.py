@@ -196,6 +196,8 @@ def claim_check(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
         "tune runs' tuner.seed differs between seeds (and the tuner returned different gains); "
         "otherwise it covers the policy's variation only.",
     ]
+    if any(r["criterion"] == "gaing" for r in numbers):
+        notes.append(labels.GAING_NOTE)
     if any(r["verdict"] == NOT_MEASURED for r in numbers):
         notes.append(
             f"{NOT_MEASURED} (convergence): eval runs made before the Definition-1 measures log "

@@ -48,6 +48,13 @@ OLD_CRITERION, OLD_HORIZON = "gaing", 0.6
 CONFIGURED = "config"
 #: Controller names of the old labels.
 OLD_CONTROLLERS = {"adaptive": "subsystem_adaptive", OLD_PID: "pid"}
+#: Said wherever a label was tuned under Gaing's W (docs/design.md §5).
+GAING_NOTE = (
+    "gaing: the paper's objective W (Gaing 2004) over its horizon. When a joint does not settle "
+    "within the horizon its settling time is the horizon, so W then rewards the slowest rise, "
+    "and integral action only raises W: at a short horizon W starves a PID of integral action. "
+    "The itae rows tune the same controllers on a standard integral criterion."
+)
 #: The columns `annotate` adds to an eval run's episodes (one value per label and run).
 LABEL_COLUMNS = (
     "stored_label", "controller_name", "role", "criterion", "horizon", "compare_with",
@@ -145,6 +152,8 @@ def _declared(
         tuned = _tuning(tune_id, tunes)
         criterion = str(entry.get("criterion") or tuned.get("criterion") or CONFIGURED)
         horizon = _float(entry.get("horizon"))
+        if math.isnan(horizon):
+            horizon = tuned.get("horizon", math.nan)
         out[str(stored)] = Label(
             name=str(stored),
             stored=str(stored),

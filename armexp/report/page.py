@@ -338,21 +338,19 @@ def _glance(summary_table: tables.Table | None, selection: Selection, cfg: DictC
         f"{html.escape(', '.join(seeds))}{how}. Every number below was read from the MLflow "
         "store; nothing was re-simulated.</li>"
     ]
-    tuned = sorted(
-        (
-            (
-                f"{r.data.params.get('controller.name', '?')}, "
-                f"{labels.tuning(*labels.tune_criterion(r))}",
-                r,
-            )
-            for r in selection.tunes.values()
-        ),
-        key=lambda pair: (pair[0], pair[1].info.run_id),
-    )
-    if tuned:
-        gains = ", ".join(
-            f"{html.escape(name)} (<a href='{_run_link(ui, r)}'>{r.info.run_id[:8]}</a>)"
-            for name, r in tuned
+    grouped: dict[str, list[Any]] = {}
+    for r in sorted(selection.tunes.values(), key=lambda r: r.info.run_id):
+        name = (
+            f"{r.data.params.get('controller.name', '?')}, "
+            f"{labels.tuning(*labels.tune_criterion(r))}"
+        )
+        grouped.setdefault(name, []).append(r)
+    if grouped:
+        gains = "; ".join(
+            f"{html.escape(name)} ("
+            + ", ".join(f"<a href='{_run_link(ui, r)}'>{r.info.run_id[:8]}</a>" for r in runs)
+            + ")"
+            for name, runs in sorted(grouped.items())
         )
         items.append(f"<li>Gains tuned by cuckoo search in: {gains}.</li>")
     if summary_table is not None:

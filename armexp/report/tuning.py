@@ -221,6 +221,8 @@ def spread_table(tunes: list[dict[str, Any]]) -> Table:
             row[f"{gain}_min"] = min(finite) if finite else math.nan
             row[f"{gain}_max"] = max(finite) if finite else math.nan
         numbers.append(row)
+    if any(t["criterion"] == "gaing" for t in tunes):
+        notes.append(labels.GAING_NOTE)
     notes += [
         "Per controller and tuning criterion, over the tune runs whose gains the selected eval "
         "runs used. Distinct gain vectors: to 6 significant digits. Best objective: the tune "
