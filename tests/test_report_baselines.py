@@ -300,3 +300,10 @@ def test_readme_results_copies_the_summary_and_the_claim_check(
         assert f"| {baseline} (" in text
     assert text.count("| faster convergence (paper: ≈ 10 %)") == 3
     assert "Adaptation does not measurably contribute" in text
+
+
+def test_every_latex_table_spells_out_its_symbols(report: Path) -> None:
+    """λ, ε, ᾱ, §, ², “ ” … are written as LaTeX commands: the .tex files are plain ASCII."""
+    for path in sorted((report / "tables").glob("*.tex")):
+        odd = sorted({c for c in path.read_text() if ord(c) > 127})
+        assert not odd, (path.name, odd)

@@ -169,6 +169,7 @@ _TEX = {
     "“": "``",
     "”": "''",
     "≈": r"$\approx$",
+    "²": r"\textsuperscript{2}",
 }
 _TEX_PATTERN = re.compile("q\u0307|" + "|".join(re.escape(c) for c in _TEX))
 
