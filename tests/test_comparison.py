@@ -158,6 +158,11 @@ def test_old_eval_runs_labels_and_their_tune_runs() -> None:
     configured = labels.of_run(None, ["adaptive", "pid"], {"armexp.adaptive_gains": "config"},
                                {"eval.pid_gains": "config"}, {})  # fmt: skip
     assert {lab.criterion for lab in configured.values()} == {"config"}
+    # An old eval run whose PID tune run already names its criterion is reported under it.
+    itae = _run({"armexp.criterion": "itae", "armexp.horizon": "1.5"}, {"tuner.seed": "0"})
+    renamed = labels.of_run(None, ["adaptive", "pid"], {"armexp.pid_tune_run": "tp"}, {},
+                            {"tp": itae})  # fmt: skip
+    assert list(renamed) == ["adaptive", "pid_itae"] and renamed["pid_itae"].stored == "pid"
     # A PID-trained policy's old eval: pid is its own, proposed controller.
     (own,) = labels.of_run(None, ["pid"], {}, {}, {}).values()
     assert (own.name, own.role) == ("pid", "proposed")

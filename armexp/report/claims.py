@@ -96,6 +96,8 @@ def tuning_in_ci(rows: pd.DataFrame, label: str) -> str:
     runs = len(own)
     if not runs or str(own.criterion.iloc[0]) == labels.CONFIGURED:
         return "policy only (configured gains)"
+    if runs < 2:
+        return "one run"
     seeds = {s for s in own.tuner_seed if isinstance(s, float | int) and math.isfinite(s)}
     if len(seeds) < 2:
         return (

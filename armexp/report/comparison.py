@@ -125,7 +125,7 @@ def comparison(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
             shown_rows.append(shown)
             numbers.append(row)
     small = f" ({ctx.initial_offset})" if ctx.initial_offset else ""
-    large = f" ({ctx.large_offset})" if ctx.large_offset else ""
+    large = f" ({ctx.large_offset})" if ctx.large_offset else " (where logged)"
     notes = [
         "Role: proposed (the policy's own controller), reference (the proposed law tuned under "
         "a baseline's criterion: the proposed side of that baseline's comparison), ablation (the "

@@ -12,7 +12,8 @@ Eval runs made before ``controllers.yaml`` ran the labels ``adaptive`` and ``pid
 the proposed ``adaptive`` against the baseline ``pid_gaing``: the PID tuned under the paper's
 criterion (Gaing's W, 0.6 s), which is what ``pid`` was. The criterion and horizon of such a
 label are its tune run's (tune runs that predate the criterion tags: ``gaing`` and their logged
-``tuner.objective.horizon``, else 0.6 s), ``config`` when the run used configured gains.
+``tuner.objective.horizon``, else 0.6 s), ``config`` when the run used configured gains; a PID
+whose tune run names another criterion is reported under it (``pid_itae``).
 
 `annotate` writes each run's labels into its episodes as the columns of `LABEL_COLUMNS`, so that
 every table works from the episodes frame alone; `ensure` gives a frame without them (old runs'
@@ -190,13 +191,16 @@ def _old(
             else str(params.get("eval.pid_gains", "tuned")) == CONFIGURED
         )
         tuned = {} if configured else _tuning(tune_id, tunes)
+        criterion = tuned.get("criterion", OLD_CRITERION)
         name = stored if is_own else OLD_PID_NAME
+        if not is_own and not configured and criterion != OLD_CRITERION:
+            name = f"{OLD_PID}_{criterion}"  # its tune run says which criterion it was tuned under
         out[name] = Label(
             name=name,
             stored=stored,
             controller=OLD_CONTROLLERS[stored],
             role="proposed" if is_own else "baseline",
-            criterion=CONFIGURED if configured else tuned.get("criterion", OLD_CRITERION),
+            criterion=CONFIGURED if configured else criterion,
             horizon=math.nan if configured else tuned.get("horizon", OLD_HORIZON),
             compare_with="" if is_own else own,
             tune_run="" if configured else tune_id,
