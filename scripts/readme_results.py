@@ -2,9 +2,11 @@
 
     python scripts/readme_results.py runs/report            # the report folder of a study
 
-The section is replaced by ``tables/summary.md`` of that report, the commands that made and
-regenerate it, and the ids of the runs it was made from, so the README's numbers always come
-from a stored report, never from hand-written prose.
+The section is replaced by ``tables/summary.md`` of that report (per agent and baseline: held-out
+success and the two verdicts; whether adaptation contributes), its claim check
+(``tables/claim_check.md``: one two-sided verdict per claim and baseline, with the CIs and what
+they cover), the commands that made and regenerate it, and the ids of the runs it was made from,
+so the README's numbers always come from a stored report, never from hand-written prose.
 """
 
 from __future__ import annotations
@@ -19,10 +21,25 @@ import pandas as pd
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 
 
+def _claims(report: Path) -> str:
+    """The claim check's table without its agent caption (the summary's says it)."""
+    text = (report / "tables" / "claim_check.md").read_text().strip()
+    return re.sub(r"^(\*\*[^\n]*\*\*)\n\n\*[^\n]*\*\n", r"\1\n", text)
+
+
 def section(report: Path, source: str) -> str:
     summary = (report / "tables" / "summary.md").read_text().strip()
     # The summary's own title line is the section's heading already.
     summary = re.sub(r"^\*\*Summary\*\*\s*", "", summary)
+    try:
+        claims = pd.read_csv(report / "tables" / "claim_check.csv")
+    except pd.errors.EmptyDataError:  # no baseline was run: an empty table
+        claims = pd.DataFrame()
+    if len(claims) and "baseline" not in claims.columns:
+        raise ValueError(
+            f"{report} is a report made before the claim check named its baselines; make the "
+            "report again with this armexp."
+        )
     runs = pd.read_csv(report / "runs.csv")
     evals = runs[runs.stage == "eval"]
     lines = [
@@ -30,6 +47,8 @@ def section(report: Path, source: str) -> str:
         f"{source} Regenerate the report with the command at the end of its `index.html`.",
         "",
         summary,
+        "",
+        _claims(report),
         "",
         f"Eval runs ({len(evals)}): " + ", ".join(f"`{r}`" for r in evals.run_id) + ".",
         END,
@@ -51,7 +70,12 @@ def main() -> int:
         return 2
     head, rest = text.split(START, 1)
     _, tail = rest.split(END, 1)
-    args.readme.write_text(head + section(args.report, args.source) + tail)
+    try:
+        text = section(args.report, args.source)
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    args.readme.write_text(head + text + tail)
     print(f"{args.readme}: results section replaced from {args.report}")
     return 0
 

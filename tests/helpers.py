@@ -100,3 +100,38 @@ def run_without(blocked: list[str], code: str, cwd: Path | None = None) -> Any:
     )
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           cwd=cwd, env={**os.environ})  # fmt: skip
+
+
+# ------------------------------------------------------------ report: runs logged by hand
+def log_run(
+    experiment_id: str,
+    stage: str,
+    params: dict[str, str],
+    tags: dict[str, str] | None = None,
+    metrics: dict[str, float] | None = None,
+    texts: dict[str, str] | None = None,
+    frames: dict[str, Any] | None = None,
+) -> str:
+    """One run logged through MLflow as a stage logs it (tag ``armexp.stage``), without running
+    the stage: params, tags, metrics, text artifacts and Parquet artifacts (``frames``: artifact
+    path → DataFrame). Returns its id."""
+    import tempfile
+
+    import mlflow
+
+    with mlflow.start_run(
+        experiment_id=experiment_id, tags={"armexp.stage": stage, **(tags or {})}
+    ) as run:
+        items = sorted(params.items())
+        for i in range(0, len(items), 100):
+            mlflow.log_params(dict(items[i : i + 100]))
+        if metrics:
+            mlflow.log_metrics(metrics)
+        for name, text in (texts or {}).items():
+            mlflow.log_text(text, name)
+        with tempfile.TemporaryDirectory() as folder:
+            for name, frame in (frames or {}).items():
+                path = Path(folder) / Path(name).name
+                frame.to_parquet(path)
+                mlflow.log_artifact(str(path), str(Path(name).parent))
+        return str(run.info.run_id)

@@ -17,7 +17,7 @@ from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
 from armexp.report.figures import learning_curves
-from tests.helpers import run_without
+from tests.helpers import log_run, run_without
 
 FIGURES = (
     "fig3_tip_paths",
@@ -33,8 +33,9 @@ TABLES = (
     "table1_environment",
     "table2_agent",
     "table3_performance",
-    "comparison_pid",
+    "comparison_controllers",
     "claim_check",
+    "tuning_spread",
     "cso_gains",
 )
 
@@ -47,11 +48,16 @@ def test_report_has_every_table_and_figure(store: Path, tmp_path: Path) -> None:
     out = tmp_path / "report"
     assert _report(store, out) == 0
     table3 = pd.read_csv(out / "tables" / "table3_performance.csv")
-    for controller in ("adaptive", "pid"):
+    for controller in ("adaptive", "paper"):  # Table III: the proposed control and the paper
         assert sorted(table3[table3.controller == controller].task) == ["a", "b", "c", "d"]
     markdown = (out / "tables" / "table3_performance.md").read_text()
     for task in "abcd":
-        assert f"| ({task}) | proposed |" in markdown and f"| ({task}) | PID |" in markdown
+        assert f"| ({task}) | proposed |" in markdown and f"| ({task}) | paper |" in markdown
+    # Every controller the eval ran is in the comparison, and each baseline in the claim check.
+    compared = pd.read_csv(out / "tables" / "comparison_controllers.csv")
+    assert compared.label.iloc[0] == "adaptive" and (compared.role == "baseline").any()
+    checked = pd.read_csv(out / "tables" / "claim_check.csv")
+    assert set(checked.baseline) == set(compared.label[compared.role == "baseline"])
     for name in TABLES:
         for ext in ("md", "tex", "csv"):
             assert (out / "tables" / f"{name}.{ext}").stat().st_size > 0, (name, ext)
@@ -75,7 +81,7 @@ def test_report_has_every_table_and_figure(store: Path, tmp_path: Path) -> None:
     ui = "http://127.0.0.1:5000/#/experiments"
     assert f"{ui}/{ev.info.experiment_id}/runs/{ev.info.run_id}" in glance
     assert "held-out success" in glance and "convergence claim <i>" in glance
-    assert "Gains tuned by cuckoo search in: pid (" in glance
+    assert "Gains tuned by cuckoo search in: pid, " in glance
     assert index.index("At a glance") < index.index("<h2>Tables</h2>")
     # The report run carries the folder as an artifact.
     (rep,) = client.search_runs(
@@ -94,7 +100,10 @@ def test_report_shows_the_eval_runs_animations(store: Path, tmp_path: Path) -> N
     assert _report(store, out) == 0
     index = (out / "index.html").read_text()
     assert "<h2>Animations</h2>" in index
-    for label in ("adaptive", "pid"):
+    shown = sorted({part.split("/")[0] for part in index.split("src='animations/")[1:]})
+    baselines = pd.read_csv(out / "tables" / "comparison_controllers.csv").label
+    assert "adaptive" in shown and set(shown) <= set(baselines) and len(shown) >= 2
+    for label in shown:
         for task in "abcd":
             gif, mp4 = f"animations/{label}/{task}.gif", f"animations/{label}/{task}.mp4"
             assert f"<img src='{gif}'" in index and f"<a href='{mp4}'>MP4</a>" in index
@@ -197,29 +206,6 @@ HAND_EPISODES = [
 ]
 
 
-def _log_run(
-    experiment_id: str,
-    stage: str,
-    params: dict[str, str],
-    tags: dict[str, str] | None = None,
-    metrics: dict[str, float] | None = None,
-    texts: dict[str, str] | None = None,
-) -> str:
-    import mlflow
-
-    with mlflow.start_run(
-        experiment_id=experiment_id, tags={"armexp.stage": stage, **(tags or {})}
-    ) as run:
-        items = sorted(params.items())
-        for i in range(0, len(items), 100):
-            mlflow.log_params(dict(items[i : i + 100]))
-        if metrics:
-            mlflow.log_metrics(metrics)
-        for name, text in (texts or {}).items():
-            mlflow.log_text(text, name)
-        return str(run.info.run_id)
-
-
 def _hand_store(runs: Path, agent: str) -> tuple[str, str]:
     """A train run of preset ``agent`` and an eval run of its policy, logged through MLflow as
     the stages log them (no stage runs): returns (train run id, eval run id)."""
@@ -230,7 +216,7 @@ def _hand_store(runs: Path, agent: str) -> tuple[str, str]:
 
     train_cfg = compose_config([f"agent={agent}", f"tracking.runs_dir={runs}"])
     experiment_id = tracking.setup(train_cfg)
-    train_id = _log_run(
+    train_id = log_run(
         experiment_id,
         "train",
         tracking.flatten(train_cfg),
@@ -248,7 +234,7 @@ def _hand_store(runs: Path, agent: str) -> tuple[str, str]:
     eval_params = tracking.flatten(compose_config([f"tracking.runs_dir={runs}"]))
     eval_params.update({"eval.initial_offset": "0.05", "robot.torque_limit": "[400.0, 300.0]"})
     episodes = pd.DataFrame(HAND_EPISODES).to_csv(index=False)
-    eval_id = _log_run(
+    eval_id = log_run(
         experiment_id,
         "eval",
         eval_params,
@@ -318,7 +304,7 @@ def test_table_three_and_the_pid_comparison_say_when_the_agent_is_aided(
     aided = "sac_quick (aided: demonstrations, behaviour cloning, DAgger expert"
     for agent, says in (("sac_quick", aided), ("sac_paper", "sac_paper (plain SAC")):
         folder = hand_reports[agent]
-        for name in ("table3_performance", "comparison_pid"):
+        for name in ("table3_performance", "comparison_controllers"):
             md = _text(folder, name, "md")
             caption = md.splitlines()[2]
             assert caption.startswith("*Agent: ") and says in caption, (agent, name, caption)
@@ -352,42 +338,54 @@ def test_the_papers_target_error_keeps_its_printed_units_with_a_note(
     assert note in (folder / "index.html").read_text()
 
 
-def test_a_ratio_against_zero_or_an_unreached_task_is_a_dash(
-    hand_reports: dict[str, Path],
-) -> None:
-    md = _text(hand_reports["sac_quick"], "comparison_pid", "md")
-    header = _row(md, "| Task |")
-    a, b, c = (dict(zip(header, _row(md, f"| ({t}) |"), strict=True)) for t in "abc")
-    assert a["convergence: proposed / PID"] == "0.000 / 0.019"
-    assert a["convergence improvement"] == "–"  # not +100 %
-    assert a["tracking improvement"] == "+20.0 %" and a["target error improvement"] == "+20.0 %"
-    assert all(b[f"{k} improvement"] == "–" for k in ("convergence", "tracking", "target time"))
-    assert c["target error improvement"] == "–" and c["convergence improvement"] == "–"
-    assert c["tracking improvement"] == "+0.0 %"
-    pooled = dict(zip(header, _row(md, "| tasks both reached: (a), (c), (d) |"), strict=True))
-    assert pooled["tracking improvement"] == "+6.7 %"
-    # PID's zero target error in (c) and the never-settled (c) and (d) void the pooled ratios.
-    assert pooled["target error improvement"] == "–" and pooled["convergence improvement"] == "–"
-    for bad in ("100.0 %", "inf", "nan"):
-        assert bad not in md.lower(), bad
-    csv = pd.read_csv(hand_reports["sac_quick"] / "tables" / "comparison_pid.csv")
-    assert csv.set_index("task").loc["(a)", "convergence_time_improvement_pct"] != 100.0
+def test_old_eval_runs_read_as_adaptive_against_pid_gaing(hand_reports: dict[str, Path]) -> None:
+    """An eval run made before controllers.yaml (labels adaptive and pid, no Definition-1
+    measures) still makes every table: pid is reported as pid_gaing, tuned under the paper's
+    criterion, and the convergence claim is "–"."""
+    folder = hand_reports["sac_quick"]
+    compared = pd.read_csv(folder / "tables" / "comparison_controllers.csv").set_index("label")
+    assert list(compared.index) == ["adaptive", "pid_gaing"]
+    assert list(compared.role) == ["proposed", "baseline"]
+    assert list(compared.criterion) == ["gaing", "gaing"] and list(compared.horizon) == [0.6, 0.6]
+    md = _text(folder, "comparison_controllers", "md")
+    header = _row(md, "| Label |")
+    pid = dict(zip(header, _row(md, "| pid_gaing |"), strict=True))
+    assert pid["Tuned under"] == "gaing over 0.6 s" and pid["Compared with"] == "adaptive"
+    assert pid["Decay rate λ (1/s)"] == "–" and pid["Tip RMS (cm)"] == "1.000"
+    assert pid["Held-out success"] == "0.0 % of 1"
+    claims = pd.read_csv(folder / "tables" / "claim_check.csv").set_index("claim")
+    assert set(claims.baseline) == {"pid_gaing"} and set(claims.proposed) == {"adaptive"}
+    assert claims.loc["faster convergence", "verdict"] == "–"
+    assert claims.loc["better accuracy", "verdict"] == "none (needs ≥ 2 seeds)"
+    assert "made before the Definition-1 measures" in _text(folder, "claim_check", "md")
+    summary = _text(folder, "summary", "md")
+    assert "| pid_gaing (pid, gaing over 0.6 s) |" in summary
+    for name in ("comparison_controllers", "claim_check", "summary", "table3_performance"):
+        text = _text(folder, name, "md").lower()
+        for bad in ("+100.0 %", "| inf", "nan"):
+            assert bad not in text, (name, bad)
+    index = (folder / "index.html").read_text()
+    assert "against <b>pid_gaing (pid, gaing over 0.6 s)</b>" in index
 
 
 def test_convergence_prints_finite_times_and_a_dash_when_never_settled(
     hand_reports: dict[str, Path],
 ) -> None:
+    """Old eval runs: Table III keeps their run-subtraction column (labelled as such), the
+    Definition-1 columns are "–"."""
     md = _text(hand_reports["sac_quick"], "table3_performance", "md")
     header = _row(md, "| Task |")
-    column = header.index("Convergence (s)‡")
+    column = header.index("Run subtraction (s)")
     assert _row(md, "| (b) | proposed |")[column] == "0.012"
     assert _row(md, "| (c) | proposed |")[column] == "–"  # episodes.csv: inf
     assert _row(md, "| (d) | proposed |")[column] == "0.015"  # the metric, not the csv's 0.5
-    assert _row(md, "| (d) | PID |")[column] == "–"  # metric inf (stored as float max)
-    assert (
-        "2 % settling time of the tracking error's response to an initial reference offset of "
-        "0.05 rad" in md
+    assert "| (d) | PID |" not in md and "| (d) | paper |" in md
+    assert _row(md, "| (a) | proposed |")[header.index("Decay rate λ (1/s)‡")] == "–"
+    assert _row(md, "| (a) | paper |")[header.index("Settling time (s)‡")] == (
+        "0.01 (optimization time)"
     )
+    assert "Run subtraction: eval runs made before the Definition-1 measures" in md
+    assert "after an initial reference offset of 0.05 rad on every joint" in md
     torque = header.index("Max torque τ1 / τ2 (N·m)")
     assert _row(md, "| (a) | proposed |")[torque] == "312.0 / 145.0"
     assert _row(md, "| (a) | proposed |")[header.index("Time at limit (s)")] == "0.250"
@@ -395,7 +393,7 @@ def test_convergence_prints_finite_times_and_a_dash_when_never_settled(
 
 
 def test_several_agents_are_told_apart_not_averaged_together() -> None:
-    from armexp.report import performance
+    from armexp.report import comparison, performance
 
     rows = []
     for agent, preset, aided, tracking in (
@@ -411,8 +409,9 @@ def test_several_agents_are_told_apart_not_averaged_together() -> None:
     proposed = table.shown[table.shown.Control == "proposed"]
     assert list(proposed.Agent) == ["sac_quick (aided)", "sac_paper (plain)"]
     assert list(proposed["Tracking error (cm)"]) == ["0.500", "2.000"]
-    comparison = performance.comparison(episodes)
-    assert set(comparison.shown.Agent) == {"sac_quick (aided)", "sac_paper (plain)"}
+    compared = comparison.comparison(episodes)
+    assert set(compared.shown.Agent) == {"sac_quick (aided)", "sac_paper (plain)"}
+    assert list(compared.shown.Label) == ["adaptive", "pid_gaing"] * 2
 
 
 def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:

@@ -10,6 +10,7 @@ import pytest
 from scipy import stats as sps
 
 from armexp.report.stats import (
+    VERDICTS,
     iqm,
     performance_profile,
     performance_profile_ci,
@@ -201,8 +202,8 @@ def test_relative_improvement_ci_recovers_20_percent() -> None:
     assert point == pytest.approx(0.2, abs=0.02)
     assert low < 0.2 < high
     assert high - low < 0.05
-    assert verdict(low, high, 0.18) in ("confirmed", "direction only")
-    assert verdict(low, high, 0.10) == "confirmed"
+    assert verdict(low, high, 0.18) == "consistent"
+    assert verdict(low, high, 0.10) == "larger than claimed"
     # Higher is better: the same numbers as a score are a 20 % deterioration.
     up, _, _ = relative_improvement_ci(proposed, baseline, higher_is_better=True, n_boot=100)
     assert up == pytest.approx(-0.2, abs=0.02)
@@ -216,23 +217,66 @@ def test_relative_improvement_against_zero_baseline_is_nan() -> None:
 @pytest.mark.parametrize(
     ("low", "high", "expected"),
     [
-        (0.20, 0.30, "confirmed"),
-        (0.10, 0.30, "confirmed"),
-        (0.05, 0.30, "direction only"),
-        (0.01, 0.05, "direction only"),
+        # consistent: above 0 and covering the claimed 10 %, bounds included
+        (0.05, 0.30, "consistent"),
+        (0.10, 0.30, "consistent"),
+        (0.01, 0.10, "consistent"),
+        (0.10, 0.10, "consistent"),
+        # larger than claimed: entirely above 10 %
+        (0.20, 0.30, "larger than claimed"),
+        (0.1000001, 0.9, "larger than claimed"),
+        # smaller than claimed: between 0 and 10 %, exclusive of 0
+        (0.01, 0.05, "smaller than claimed"),
+        (1e-9, 0.0999999, "smaller than claimed"),
+        # refuted: entirely below 0
         (-0.30, -0.01, "refuted"),
+        (-0.30, -1e-12, "refuted"),
+        # inconclusive: contains 0 (a bound on 0 counts) or a nan bound
         (-0.05, 0.30, "inconclusive"),
         (0.0, 0.30, "inconclusive"),
+        (-0.30, 0.0, "inconclusive"),
+        (0.0, 0.0, "inconclusive"),
         (math.nan, math.nan, "inconclusive"),
+        (math.nan, 0.3, "inconclusive"),
+        (0.2, math.nan, "inconclusive"),
     ],
 )
 def test_verdict(low: float, high: float, expected: str) -> None:
     assert verdict(low, high, 0.10) == expected
+    assert expected in VERDICTS
+
+
+def test_verdict_against_a_claim_of_zero_is_larger_whenever_it_is_above_zero() -> None:
+    assert verdict(0.01, 0.02, 0.0) == "larger than claimed"
+    assert verdict(0.0, 0.02, 0.0) == "inconclusive"
+    assert verdict(-0.02, -0.01, 0.0) == "refuted"
+
+
+def test_each_verdict_word_on_synthetic_seeds() -> None:
+    """Error matrices (runs × tasks) with a known relative improvement: 2 %, 10 %, 40 %, −20 %
+    and 0 % against a claimed 10 % give the five words."""
+    rng = np.random.default_rng(3)
+    baseline = rng.normal(10.0, 0.2, size=(12, 4))
+    got = {}
+    for size in (0.02, 0.10, 0.40, -0.20, 0.0):
+        noise = 0.02 if size != 0.10 else 0.1  # a wider CI around the claim
+        proposed = baseline * (1 - size) * (1 + noise * rng.standard_normal(baseline.shape))
+        _, low, high = relative_improvement_ci(proposed, baseline, n_boot=500)
+        got[size] = verdict(low, high, 0.10)
+    assert got == {
+        0.02: "smaller than claimed",
+        0.10: "consistent",
+        0.40: "larger than claimed",
+        -0.20: "refuted",
+        0.0: "inconclusive",
+    }
 
 
 def test_verdict_rejects_bad_input() -> None:
     with pytest.raises(ValueError):
         verdict(0.1, 0.2, -0.1)
+    with pytest.raises(ValueError):
+        verdict(0.1, 0.2, math.nan)
     with pytest.raises(ValueError):
         verdict(0.3, 0.2, 0.1)
 

@@ -71,9 +71,10 @@ def test_a_study_with_a_failed_seed_reports_the_others_and_is_finished_by_a_reru
     assert set(ours.tip_rms_cm_n) == {2} and (ours.tip_rms_cm_ci_low <= ours.tip_rms_cm).all()
     assert table3.agent.str.contains("paper gains").any()
     claims = pd.read_csv(tables / "claim_check.csv")
-    assert len(claims) == 2 and claims.verdict.notna().all() and set(claims.seeds) == {2}
+    assert len(claims) == 2 * claims.baseline.nunique() >= 2  # each claim against each baseline
+    assert claims.verdict.notna().all() and set(claims.seeds) == {2}
     missing = "Missing: seed 1 of 3 has no finished eval run"
-    for name in ("table3_performance.md", "comparison_pid.md", "claim_check.md"):
+    for name in ("table3_performance.md", "comparison_controllers.md", "claim_check.md"):
         assert missing in (tables / name).read_text(), name
     assert missing in (runs / "report" / "index.html").read_text()
     for figure in ("performance_profiles", "learning_curves"):

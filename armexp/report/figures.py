@@ -2,8 +2,12 @@
 
 * Fig. 3: tip paths of tasks (a)–(d) with the obstacles, targets and the arm's initial pose;
 * Fig. 4: tip-to-target error against time;
-* Fig. 5: joint torques against time;
-* Fig. 6: joint position tracking (reference q_d vs actual q) with a zoom on the first 0.1 s;
+* Fig. 5: joint torques against time, one column per controller label (the proposed control and
+  each baseline), the same scale along each row;
+* Fig. 6: joint position tracking (reference q_d vs actual q) with a zoom on the first 0.1 s, one
+  pair of columns per label (the report draws the proposed control and its main baseline: the
+  reference differs between controllers, because the policy answers each closed loop, so every
+  panel shows its own q_d);
 * learning curves (success rate and episode reward against environment steps) and CSO
   convergence (best objective per iteration).
 """
@@ -87,39 +91,55 @@ def target_error(trajectories: dict[str, pd.DataFrame], threshold: float) -> Any
     return fig
 
 
-def torques(trajectories: dict[str, pd.DataFrame]) -> Any:
-    n = _joints(next(iter(trajectories.values())))
-    fig, axes = plt.subplots(n, 1, figsize=(7, 2.4 * n), sharex=True)
-    for j, ax in enumerate(np.atleast_1d(axes)):
-        for task, frame in trajectories.items():
-            ax.plot(
-                frame.t, frame[f"tau_{j + 1}"], color=COLORS.get(task), lw=0.8, label=f"({task})"
-            )
-        ax.set_ylabel(f"τ{j + 1} (N·m)")
-        ax.grid(alpha=0.3)
-    np.atleast_1d(axes)[0].legend(fontsize=8, ncol=4)
-    np.atleast_1d(axes)[-1].set_xlabel("t (s)")
-    fig.suptitle("Fig. 5: joint torques (proposed control)")
+def torques(trajectories: dict[str, dict[str, pd.DataFrame]]) -> Any:
+    """Fig. 5: ``trajectories[label][task]``; rows are joints, columns labels (the first one
+    is the proposed control), tasks by colour."""
+    columns = {label: frames for label, frames in trajectories.items() if frames}
+    n = _joints(next(iter(next(iter(columns.values())).values())))
+    width = 7 if len(columns) == 1 else 3.6 * len(columns)
+    fig, axes = plt.subplots(
+        n, len(columns), figsize=(width, 2.4 * n), sharex=True, sharey="row", squeeze=False
+    )
+    for col, (label, frames) in enumerate(columns.items()):
+        for j in range(n):
+            ax = axes[j, col]
+            for task, frame in frames.items():
+                ax.plot(frame.t, frame[f"tau_{j + 1}"], color=COLORS.get(task), lw=0.8,
+                        label=f"({task})")  # fmt: skip
+            ax.grid(alpha=0.3)
+            if col == 0:
+                ax.set_ylabel(f"τ{j + 1} (N·m)")
+        axes[0, col].set_title(label, fontsize=9)
+        axes[-1, col].set_xlabel("t (s)")
+    axes[0, 0].legend(fontsize=8, ncol=4)
+    names = " and ".join(columns) if len(columns) <= 2 else ", ".join(columns)
+    fig.suptitle(f"Fig. 5: joint torques ({names})")
+    fig.tight_layout()
     return fig
 
 
-def tracking(frame: pd.DataFrame, task: str, zoom: float = 0.1) -> Any:
-    n = _joints(frame)
-    fig, axes = plt.subplots(n, 2, figsize=(9, 2.5 * n), gridspec_kw={"width_ratios": [3, 1]})
-    axes = np.atleast_2d(axes)
-    early = frame[frame.t <= frame.t.iloc[0] + zoom]
-    for j in range(n):
-        for ax, part in ((axes[j, 0], frame), (axes[j, 1], early)):
-            ax.plot(part.t, part[f"q_d_{j + 1}"], "k--", lw=1.2, label="reference q_d")
-            ax.plot(
-                part.t, part[f"q_{j + 1}"], color=COLORS.get(task, "C0"), lw=1, label="actual q"
-            )
-            ax.grid(alpha=0.3)
-        axes[j, 0].set_ylabel(f"q{j + 1} (rad)")
+def tracking(frames: dict[str, pd.DataFrame], task: str, zoom: float = 0.1) -> Any:
+    """Fig. 6: ``frames[label]`` of one task; per label a full and a zoomed column, each panel
+    with that label's own reference q_d."""
+    n = _joints(next(iter(frames.values())))
+    k = len(frames)
+    fig, axes = plt.subplots(n, 2 * k, figsize=(4.5 * k + 4.5 * (k == 1), 2.5 * n),
+                             gridspec_kw={"width_ratios": [3, 1] * k}, squeeze=False)  # fmt: skip
+    for i, (label, frame) in enumerate(frames.items()):
+        early = frame[frame.t <= frame.t.iloc[0] + zoom]
+        color = COLORS.get(task, "C0") if i == 0 else f"C{i + 4}"
+        for j in range(n):
+            for ax, part in ((axes[j, 2 * i], frame), (axes[j, 2 * i + 1], early)):
+                ax.plot(part.t, part[f"q_d_{j + 1}"], "k--", lw=1.2, label="reference q_d")
+                ax.plot(part.t, part[f"q_{j + 1}"], color=color, lw=1, label="actual q")
+                ax.grid(alpha=0.3)
+            if i == 0:
+                axes[j, 0].set_ylabel(f"q{j + 1} (rad)")
+        axes[0, 2 * i].set_title(label, fontsize=9)
+        axes[0, 2 * i + 1].set_title(f"first {zoom:g} s", fontsize=9)
+        axes[-1, 2 * i].set_xlabel("t (s)")
+        axes[-1, 2 * i + 1].set_xlabel("t (s)")
     axes[0, 0].legend(fontsize=8)
-    axes[0, 1].set_title(f"first {zoom:g} s", fontsize=9)
-    axes[-1, 0].set_xlabel("t (s)")
-    axes[-1, 1].set_xlabel("t (s)")
     fig.suptitle(f"Fig. 6: joint position tracking, task ({task})")
     fig.tight_layout()
     return fig
@@ -169,6 +189,8 @@ def learning_curves(curves: dict[str, dict[str, pd.DataFrame]]) -> Any:
 
 
 def cso_convergence(histories: dict[str, pd.DataFrame], paper: dict[str, float]) -> Any:
+    """Best objective per CSO iteration of each tune run (``histories`` by label), with the
+    paper's gains' objective where given (``paper`` by the same labels)."""
     fig, ax = plt.subplots(figsize=(7, 3.8))
     for i, (label, h) in enumerate(histories.items()):
         ax.plot(h.step, h.value, color=f"C{i}", label=label)
@@ -177,7 +199,7 @@ def cso_convergence(histories: dict[str, pd.DataFrame], paper: dict[str, float])
             ax.axhline(ref, color=f"C{i}", ls=":", lw=1, label=f"{label}: paper's gains")
     ax.set_yscale("log")
     ax.set_xlabel("CSO iteration")
-    ax.set_ylabel("best objective W")
+    ax.set_ylabel("best objective (each run's criterion)")
     ax.set_title("Cuckoo search convergence")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)

@@ -3,8 +3,10 @@ context each table states, the tune and training histories, and the runs used.
 
 Each eval run's agent (preset, learning aids, budget spent) comes from its train run
 (`armexp.report.agent`); the eval run's own ``agent.*`` params are its stage defaults, not the
-policy's. Its ``<controller>.<task>.<metric>`` metrics override ``episodes.csv`` for the paper
-tasks; ``eval.initial_offset`` and ``robot.torque_limit`` params go into the footnotes.
+policy's. Its labels (what each controller was, how it was tuned, what it is compared with) come
+from its ``controllers.yaml`` (`armexp.report.labels`; older runs: ``adaptive`` against
+``pid_gaing``). Its ``<label>.<task>.<metric>`` metrics override ``episodes.csv`` for the paper
+tasks; the ``eval.*`` offsets and ``robot.torque_limit`` params go into the footnotes.
 """
 
 from __future__ import annotations
@@ -18,15 +20,14 @@ import pandas as pd
 import yaml
 
 from armexp.config import ConfigError
-from armexp.report import tables
+from armexp.report import labels, tables, tuning
 from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
-from armexp.report.runs import CONTROLLERS, TASKS, Reader, Selection, metric_value
+from armexp.report.labels import GAINS_TAG, Label
+from armexp.report.runs import TASKS, TRAIN_RUN_TAG, Reader, Selection, metric_value
 
-GAINS_TAG = "armexp.adaptive_gains"
-#: What `armexp eval` animates: ``animations/<controller>/<task>.<format>`` artifacts.
+#: What `armexp eval` animates: ``animations/<label>/<task>.<format>`` artifacts.
 ANIMATIONS_DIR = "animations"
 ANIMATION_FORMATS = ("gif", "mp4")
-TRAIN_RUN_TAG = "armexp.train_run"
 
 
 def agents_of(selection: Selection, configs: dict[str, Any]) -> dict[str, AgentInfo]:
@@ -44,7 +45,7 @@ def agents_of(selection: Selection, configs: dict[str, Any]) -> dict[str, AgentI
 def _gains_label(ev: Any) -> str:
     """How an eval run with ``eval.adaptive_gains=config`` is named: "paper gains" when its
     logged ``controller.gains.*`` are the paper's."""
-    published = tables.paper_gains()
+    published = tuning.paper_gains()
     logged = {k: _param(ev.data.params.get(f"controller.gains.{k}")) for k in published}
     same = all(
         isinstance(v, int | float) and math.isclose(float(v), published[k])
@@ -101,10 +102,37 @@ def _param(text: str | None) -> Any:
     return None if value in ("None", "") else value
 
 
-def episodes_of(selection: Selection, reader: Reader, agents: dict[str, AgentInfo]) -> pd.DataFrame:
-    """Every episode of the selected eval runs (``episodes.csv``), with the agent that ran it,
-    and the eval run's ``<controller>.<task>.<metric>`` metrics over the paper tasks' rows
-    (the same numbers where both exist; a metric ±inf, stored as ±float max, reads as ±inf)."""
+def _stored_labels(metrics: dict[str, float]) -> list[str]:
+    """The labels an eval run logged metrics for (``<label>.<task or random>.<metric>``)."""
+    return list(dict.fromkeys(k.split(".", 1)[0] for k in sorted(metrics) if k.count(".") >= 2))
+
+
+def labels_of(selection: Selection, reader: Reader) -> dict[str, dict[str, Label]]:
+    """Each eval run's labels by reported name (by eval run id), from its ``controllers.yaml``
+    or, for runs made before it, from the labels its metrics name."""
+    out = {}
+    for ev in selection.evals:
+        declared = reader.yaml(ev.info.run_id, labels.CONTROLLERS_FILE)
+        out[ev.info.run_id] = labels.of_run(
+            declared,
+            _stored_labels(ev.data.metrics),
+            ev.data.tags,
+            ev.data.params,
+            selection.tunes,
+        )
+    return out
+
+
+def episodes_of(
+    selection: Selection,
+    reader: Reader,
+    agents: dict[str, AgentInfo],
+    run_labels: dict[str, dict[str, Label]],
+) -> pd.DataFrame:
+    """Every episode of the selected eval runs (``episodes.csv``), with the agent that ran it
+    and its label's columns (`armexp.report.labels.annotate`), and the eval run's
+    ``<label>.<task>.<metric>`` metrics over the paper tasks' rows (the same numbers where both
+    exist; a metric ±inf, stored as ±float max, reads as ±inf)."""
     frames = []
     for ev in selection.evals:
         frame = reader.frame(ev.info.run_id, "episodes.csv")
@@ -119,14 +147,15 @@ def episodes_of(selection: Selection, reader: Reader, agents: dict[str, AgentInf
         frame.insert(4, "aided", info.aided)
         frame.insert(5, "gains", info.gains)
         paper = frame.task.isin(list(TASKS))
+        stored = set(frame.controller.astype(str))
         for name, value in sorted(ev.data.metrics.items()):
             label, _, rest = name.partition(".")
             task, _, key = rest.partition(".")
-            if label in CONTROLLERS and task in TASKS and key and "." not in key:
+            if label in stored and task in TASKS and key and "." not in key:
                 rows = paper & (frame.controller == label) & (frame.task == task)
                 if rows.any():
                     frame.loc[rows, key] = metric_value(value)
-        frames.append(frame)
+        frames.append(labels.annotate(frame, run_labels.get(run_id, {})))
     if not frames:
         raise ConfigError(
             "the report has nothing to show: the selected eval runs have no episodes.csv "
@@ -151,7 +180,7 @@ def _per_joint(value: Any, unit: str, sign: str = "") -> str:
 def context_of(
     selection: Selection, agents: dict[str, AgentInfo], train_cfg: dict[str, Any] | None
 ) -> tables.Context:
-    """What Tables III and the PID comparison say beside their numbers."""
+    """What Table III, the controller comparison and the claim check say beside their numbers."""
     infos = list({a.label: a for a in agents.values()}.values())
     counts = [sum(a.label == i.label for a in agents.values()) for i in infos]
     params = [ev.data.params for ev in selection.evals]
@@ -160,36 +189,21 @@ def context_of(
     )
     if limit is None and train_cfg and train_cfg.get("robot", {}).get("torque_limit"):
         limit = _per_joint(train_cfg["robot"]["torque_limit"], "N·m", "±")
-    threshold = (train_cfg or {}).get("env", {}).get("reach_threshold", 0.04)
+    env = (train_cfg or {}).get("env", {})
     return tables.Context(
         agent=caption(infos, counts),
         initial_offset=_values(
             [p.get("eval.initial_offset") for p in params], lambda v: _per_joint(v, "rad")
         ),
+        large_offset=_values(
+            [p.get("eval.large_offset") for p in params], lambda v: _per_joint(v, "rad")
+        ),
         torque_limit=limit,
-        reach_threshold=float(threshold),
+        reach_threshold=float(env.get("reach_threshold", 0.04)),
+        action_period=float(env.get("action_period", 0.03)),
         plain_missing=any(a.aided for a in infos)
         and not any(a.known and not a.aids for a in infos),
     )
-
-
-def tunes_of(selection: Selection, reader: Reader) -> list[dict[str, Any]]:
-    out = []
-    for run_id, run in sorted(selection.tunes.items()):
-        m = run.data.metrics
-        out.append(
-            {
-                "run_id": run_id,
-                "controller": "pid"
-                if run.data.params.get("controller.name") == "pid"
-                else "adaptive",
-                "gains": reader.yaml(run_id, "gains.yaml"),
-                "best": m.get("best_objective", math.nan),
-                "paper_objective": m.get("objective_paper_gains", math.nan),
-                "history": reader.history(run_id, "best_objective"),
-            }
-        )
-    return sorted(out, key=lambda t: (CONTROLLERS.index(t["controller"]), t["run_id"]))
 
 
 def training_curves(selection: Selection, reader: Reader) -> dict[str, dict[str, pd.DataFrame]]:
@@ -258,24 +272,25 @@ def headline(episodes: pd.DataFrame) -> dict[str, float]:
 
 
 def animations_of(
-    run_id: str, reader: Reader, folder: Path
+    run_id: str, run_labels: dict[str, Label], reader: Reader, folder: Path
 ) -> list[tuple[str, str, dict[str, str]]]:
-    """The eval run's animations of the paper tasks, copied into ``folder`` under the same
-    names: (controller, task, {format: path relative to ``folder``}) for each that has a GIF."""
+    """The eval run's animations of the paper tasks, copied into ``folder`` under
+    ``animations/<label>/<task>.<format>``: (label, task, {format: path relative to ``folder``})
+    for each that has a GIF; ``run_labels`` gives each label's stored folder name."""
     source = reader.path(run_id, ANIMATIONS_DIR)
     if source is None:
         return []
     out = []
-    for label in CONTROLLERS:
+    for name, lab in run_labels.items():
         for task in TASKS:
             files = {}
             for fmt in ANIMATION_FORMATS:
-                path = source / label / f"{task}.{fmt}"
+                path = source / lab.stored / f"{task}.{fmt}"
                 if path.is_file():
-                    relative = f"{ANIMATIONS_DIR}/{label}/{task}.{fmt}"
+                    relative = f"{ANIMATIONS_DIR}/{name}/{task}.{fmt}"
                     (folder / relative).parent.mkdir(parents=True, exist_ok=True)
                     shutil.copyfile(path, folder / relative)
                     files[fmt] = relative
             if "gif" in files:
-                out.append((label, task, files))
+                out.append((name, task, files))
     return out

@@ -1,8 +1,10 @@
 """Which MLflow runs a report is made of, and reading them into pandas through MLflow's API.
 
 A report starts from eval runs and follows their lineage tags upstream: ``armexp.train_run`` to
-the policy's train run, ``armexp.tune_run`` / ``armexp.pid_tune_run`` to the tune runs whose gains
-were used. Nothing here imports the simulation, environment or agent code.
+the policy's train run, ``armexp.tune_run.<label>`` to the tune run whose gains each controller
+label used (eval runs made before per-label tags: ``armexp.tune_run`` for the policy's own
+controller and ``armexp.pid_tune_run`` for the PID). Nothing here imports the simulation,
+environment or agent code.
 """
 
 from __future__ import annotations
@@ -25,7 +27,20 @@ from armexp.config import ConfigError
 STAGE_TAG = "armexp.stage"
 PARENT_TAG = "mlflow.parentRunId"
 TASKS = ("a", "b", "c", "d")
-CONTROLLERS = ("adaptive", "pid")
+TRAIN_RUN_TAG = "armexp.train_run"
+#: ``armexp.tune_run.<label>``: the tune run whose gains an eval run's label used.
+TUNE_RUN_PREFIX = "armexp.tune_run."
+#: The policy's own controller's tune run (every eval run; the only one before per-label tags).
+TUNE_RUN_TAG = "armexp.tune_run"
+#: Eval runs made before per-label tags: the PID baseline's tune run.
+PID_TUNE_RUN_TAG = "armexp.pid_tune_run"
+
+
+def tune_run_ids(tags: dict[str, str]) -> list[str]:
+    """Every tune run an eval run's tags name, new and old tags alike, in tag order."""
+    keys = [k for k in sorted(tags) if k.startswith(TUNE_RUN_PREFIX)]
+    keys += [TUNE_RUN_TAG, PID_TUNE_RUN_TAG]
+    return list(dict.fromkeys(tags[k] for k in keys if tags.get(k)))
 
 
 def metric_value(value: float) -> float:
@@ -123,15 +138,18 @@ def select(
         )
     selection = Selection(evals=evals, how=how)
     for ev in evals:
-        for tag in ("armexp.train_run", "armexp.tune_run", "armexp.pid_tune_run"):
-            upstream = ev.data.tags.get(tag)
-            if not upstream:
+        tags = ev.data.tags
+        upstream: list[tuple[str | None, dict[str, Run]]] = [
+            (tags.get(TRAIN_RUN_TAG), selection.trains)
+        ]
+        upstream += [(tid, selection.tunes) for tid in tune_run_ids(tags)]
+        for upstream_id, into in upstream:
+            if not upstream_id or upstream_id in into:
                 continue
             try:
-                run = client.get_run(upstream)
+                into[upstream_id] = client.get_run(upstream_id)
             except Exception:
                 continue  # deleted upstream: the tables that need it say so
-            (selection.trains if tag == "armexp.train_run" else selection.tunes)[upstream] = run
     return selection
 
 

@@ -11,7 +11,8 @@ dependencies):
 * :func:`probability_of_improvement` (+ ``_ci``): P(X > Y) from the Mann–Whitney U statistic,
   averaged over tasks,
 * :func:`performance_profile` (+ ``_ci``): fraction of runs scoring above each threshold,
-* :func:`relative_improvement_ci` and :func:`verdict`: the claim check of docs/design.md §9.
+* :func:`relative_improvement_ci` and :func:`verdict`: the two-sided claim check of
+  docs/design.md §9.
 
 Score matrices have one row per run (seed, or seed × episode) and one column per task; a 1-D
 array is read as a single task column.
@@ -282,29 +283,41 @@ def relative_improvement_ci(
     return float(p), float(lo), float(hi)
 
 
-def verdict(low: float, high: float, claimed: float) -> str:
-    """One-word claim check (docs/design.md §9) of an improvement CI ``[low, high]`` against the
-    claimed improvement size ``claimed`` (≥ 0, same sign convention: positive means the proposed
-    method is better):
+#: The words of :func:`verdict` (docs/design.md §9), in the order a reader scans them.
+VERDICTS = ("consistent", "larger than claimed", "smaller than claimed", "refuted", "inconclusive")
 
-    * ``"confirmed"``: the CI lies entirely at or above ``claimed`` (and above 0),
-    * ``"direction only"``: the CI lies entirely above 0 but not entirely at or above ``claimed``,
-    * ``"refuted"``: the CI lies entirely below 0,
-    * ``"inconclusive"``: otherwise, including nan bounds.
+
+def verdict(low: float, high: float, claimed: float) -> str:
+    """Two-sided claim check (docs/design.md §9) of an improvement CI ``[low, high]`` against the
+    claimed improvement size ``claimed`` (≥ 0, same sign convention: positive means the proposed
+    method is better). The CI is closed; one of :data:`VERDICTS`:
+
+    * ``"consistent"``: the CI lies above 0 and covers ``claimed`` (``0 < low ≤ claimed ≤ high``),
+    * ``"larger than claimed"``: the CI lies entirely above ``claimed`` (``low > claimed``, and
+      ``low > 0``),
+    * ``"smaller than claimed"``: the CI lies between 0 and ``claimed``, exclusive of 0
+      (``0 < low ≤ high < claimed``): the same direction, a smaller effect,
+    * ``"refuted"``: the CI lies entirely below 0 (``high < 0``): the other direction,
+    * ``"inconclusive"``: the CI contains 0 (``low ≤ 0 ≤ high``), or a bound is nan.
+
+    A measured effect far above the claim is not a reproduction of its size, so it is not
+    "consistent" either.
     """
     if not math.isfinite(claimed) or claimed < 0:
         raise ValueError(f"claimed must be a finite size >= 0, got {claimed}")
-    if not (math.isfinite(low) and math.isfinite(high)):
+    if math.isnan(low) or math.isnan(high):
         return "inconclusive"
     if low > high:
         raise ValueError(f"low ({low}) > high ({high})")
-    if low > 0 and low >= claimed:
-        return "confirmed"
-    if low > 0:
-        return "direction only"
     if high < 0:
         return "refuted"
-    return "inconclusive"
+    if low <= 0:
+        return "inconclusive"
+    if low > claimed:
+        return "larger than claimed"
+    if high < claimed:
+        return "smaller than claimed"
+    return "consistent"
 
 
 #: Vectorised twins of statistics, applied to all replicates at once (same values as the loop).

@@ -2,11 +2,12 @@
 
 * Table I: environment parameters (from the train run's config),
 * Table II: agent parameters as used, beside the paper's: the preset, its learning aids (and
-  whether any uses privileged knowledge), the budget configured and the budget spent,
-* the CSO results: tuned gains beside the paper's, with their objective values;
+  whether any uses privileged knowledge), the budget configured and the budget spent;
 
-and the `Table` every report table is written through. Table III and the PID comparison are
-`armexp.report.performance`, the claim check `armexp.report.claims`.
+and the `Table` every report table is written through. Table III is
+`armexp.report.performance`, the controller comparison and the ablation
+`armexp.report.comparison`, the claim check `armexp.report.claims`, the CSO gains and the tuning
+spread `armexp.report.tuning`.
 """
 
 from __future__ import annotations
@@ -36,11 +37,15 @@ class Context:
 
     #: One line naming the agent(s) and whether they were aided (`armexp.report.agent.caption`).
     agent: str = ""
-    #: ``eval.initial_offset`` as logged (e.g. "0.05 rad"); None: not logged.
+    #: ``eval.initial_offset`` as logged (e.g. "0.005 rad"); None: not logged.
     initial_offset: str | None = None
+    #: ``eval.large_offset`` as logged (e.g. "0.05 rad"); None: not logged (or null).
+    large_offset: str | None = None
     #: ``robot.torque_limit`` as logged (e.g. "±400, ±300 N·m"); None: not logged.
     torque_limit: str | None = None
     reach_threshold: float = 0.04
+    #: ``env.action_period`` (s): the reach check runs once per action.
+    action_period: float = 0.03
     #: An aided agent is shown and the paper's plain SAC is not among the selected runs.
     plain_missing: bool = False
     #: A sentence naming the seeds (``report.seeds``) without a finished eval run; None: none.
@@ -156,6 +161,15 @@ _TEX = {
     "†": r"\textsuperscript{\dag}",
     "‡": r"\textsuperscript{\ddag}",
     "→": r"$\to$",
+    "λ": r"$\lambda$",
+    "ε": r"$\varepsilon$",
+    "ᾱ": r"$\bar{\alpha}$",
+    "ρ": r"$\rho$",
+    "§": r"\S{}",
+    "“": "``",
+    "”": "''",
+    "≈": r"$\approx$",
+    "²": r"\textsuperscript{2}",
 }
 _TEX_PATTERN = re.compile("q\u0307|" + "|".join(re.escape(c) for c in _TEX))
 
@@ -347,67 +361,3 @@ def _plain(v: Any) -> str:
     if isinstance(v, float) and v.is_integer() and abs(v) >= 1:
         return str(int(v))
     return str(v)
-
-
-def paper_gains() -> dict[str, float]:
-    """The paper's adaptive gains, from the config tree (``controller.gains=paper``)."""
-    from omegaconf import OmegaConf
-
-    from armexp.config import config_dir
-
-    gains = OmegaConf.to_container(OmegaConf.load(config_dir() / "controller/gains/paper.yaml"))
-    assert isinstance(gains, dict)
-    return {str(k): float(v) for k, v in gains.items()}
-
-
-def cso_table(tunes: list[dict[str, Any]]) -> Table:
-    """Each tune run's best gains beside the paper's (adaptive), and the objective values."""
-    published = paper_gains()
-    shown_rows, numbers = [], []
-    for tune in tunes:
-        gains = tune["gains"] or {}
-        for name, value in gains.items():
-            values = value if isinstance(value, list) else [value]
-            for j, v in enumerate(values):
-                gain = name if len(values) == 1 else f"{name}_{j + 1}"
-                paper = published.get(gain, math.nan) if tune["controller"] != "pid" else math.nan
-                shown_rows.append(
-                    {
-                        "Controller": tune["controller"],
-                        "Gain": gain,
-                        "Tuned (CSO)": f"{v:.6g}",
-                        "Paper": f"{paper:g}" if math.isfinite(paper) else "–",
-                    }
-                )
-                numbers.append(
-                    {
-                        "run_id": tune["run_id"],
-                        "controller": tune["controller"],
-                        "gain": gain,
-                        "tuned": v,
-                        "paper": paper,
-                    }
-                )
-        shown_rows.append(
-            {
-                "Controller": tune["controller"],
-                "Gain": "objective W",
-                "Tuned (CSO)": fmt(tune["best"]),
-                "Paper": fmt(tune["paper_objective"]) if tune["controller"] != "pid" else "–",
-            }
-        )
-        numbers.append(
-            {
-                "run_id": tune["run_id"],
-                "controller": tune["controller"],
-                "gain": "objective",
-                "tuned": tune["best"],
-                "paper": tune["paper_objective"],
-            }
-        )
-    return Table(
-        "cso_gains",
-        "CSO results: tuned gains and objective W (lower is better)",
-        pd.DataFrame(shown_rows),
-        pd.DataFrame(numbers),
-    )
