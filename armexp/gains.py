@@ -57,8 +57,14 @@ def criterion_of(cfg: DictConfig) -> str:
 
 
 def with_criterion(cfg: DictConfig, criterion: str) -> DictConfig:
-    """A copy of ``cfg`` that tunes under ``criterion`` (its horizon as configured)."""
+    """A copy of ``cfg`` that tunes under ``criterion`` (its horizon as configured). Where the
+    config has no criterion choice, its objective is W (``gaing``): the copy is unchanged for
+    ``gaing``, and an untyped copy records any other criterion."""
     out = copy.deepcopy(cfg)
+    if "criterion" not in out.tuner.objective:
+        if criterion == OLD_CRITERION:
+            return out
+        out = OmegaConf.create(OmegaConf.to_container(out))
     with open_dict(out):
         out.tuner.objective.criterion = criterion
     return out

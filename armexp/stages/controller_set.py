@@ -212,7 +212,11 @@ def controller_set(cfg: DictConfig, policy: Policy) -> list[Entry]:
         entries.append(ablation_entry(policy))
     comparison = criterion_of(cfg)
     tuned_baselines = str(stage.baseline_gains) == "tuned"
-    references: list[Entry] = []
+    for name in names:
+        criterion = baseline_criterion(name, comparison)
+        same = not (adaptive and tuned_baselines) or criterion == own.gains.criterion
+        compare = own.label if same else reference_label(criterion)
+        entries.append(baseline_entry(cfg, "eval", policy, name, compare))
     if adaptive and tuned_baselines:
         for criterion in reference_criteria(names, own.gains.criterion, comparison):
             label = reference_label(criterion)
@@ -220,13 +224,8 @@ def controller_set(cfg: DictConfig, policy: Policy) -> list[Entry]:
                 cfg, ADAPTIVE, policy.robot, criterion, stage.tune_runs.get(label),
                 key=f"eval.tune_runs.{label}",
             )  # fmt: skip
-            references.append(Entry(label, REFERENCE, found))
-    for name in names:
-        criterion = baseline_criterion(name, comparison)
-        same = not (adaptive and tuned_baselines) or criterion == own.gains.criterion
-        compare = own.label if same else reference_label(criterion)
-        entries.append(baseline_entry(cfg, "eval", policy, name, compare))
-    return entries + references
+            entries.append(Entry(label, REFERENCE, found))
+    return entries
 
 
 def play_entry(cfg: DictConfig, policy: Policy) -> Entry:
