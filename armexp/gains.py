@@ -64,7 +64,9 @@ def with_criterion(cfg: DictConfig, criterion: str) -> DictConfig:
     if "criterion" not in out.tuner.objective:
         if criterion == OLD_CRITERION:
             return out
-        out = OmegaConf.create(OmegaConf.to_container(out))
+        untyped = OmegaConf.create(OmegaConf.to_container(out))
+        assert isinstance(untyped, DictConfig)
+        out = untyped
     with open_dict(out):
         out.tuner.objective.criterion = criterion
     return out

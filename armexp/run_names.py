@@ -47,7 +47,7 @@ def _subject(cfg: DictConfig, stage: str, tags: Mapping[str, str]) -> list[str]:
         return [str(cfg.controller.name), f"s{cfg.tuner.seed}"]
     if stage in ("train", "eval", "play"):
         preset = tags.get(AGENT_PRESET_TAG)
-        extra = [str(cfg.play.controller)] if stage == "play" else []
+        extra = [str(cfg.play.controller)] if stage == "play" and cfg.play.controller else []
         return [*([preset] if preset else []), *extra, seed]
     if stage == "pipeline":
         seeds = [int(s) for s in cfg.pipeline.seeds]

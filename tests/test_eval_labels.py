@@ -246,3 +246,35 @@ def test_a_tune_run_of_another_controller_for_a_baseline_is_one_sentence(
     assert len(err) == 1 and f"eval.tune_runs.{pid}={adaptive} is not allowed" in err[0], err
     assert "controller.name=pid is needed here" in err[0]
     assert len(stage_runs(store, "eval")) == before
+
+
+def test_tune_runs_by_label_on_the_command_line() -> None:
+    from armexp.config import compose_config
+
+    overrides = ["eval.tune_runs.pid_itae=abc", "eval.tune_runs.pid_itae=abd",
+                 "eval.tune_runs={adaptive_gaing: x}", "play.tune_runs.pid_gaing=y"]  # fmt: skip
+    cfg = compose_config(overrides)
+    assert dict(cfg.eval.tune_runs) == {"pid_itae": "abd", "adaptive_gaing": "x"}
+    assert dict(cfg.play.tune_runs) == {"pid_gaing": "y"}
+    with pytest.raises(ConfigError, match=r"map a baseline .* or adaptive_<criterion> to a tune"):
+        compose_config(["eval.tune_runs.adaptive_off=x"])
+    with pytest.raises(ConfigError, match=r"eval\.large_offset=4\.0 is not allowed: .*joint range"):
+        compose_config(["eval.large_offset=4"])
+    assert compose_config(["eval.large_offset=null"]).eval.large_offset is None
+
+
+def test_the_summary_line_names_every_label(capsys: pytest.CaptureFixture[str]) -> None:
+    import pandas as pd
+
+    from armexp.stages.evaluate import _print_summary
+
+    rows = [{"controller": label, "task": task, "success": 1.0, "collision": 0.0,
+             "decay_rate": 20.0 if task == "a" else float("nan")}
+            for label in ("adaptive", "adaptive_off", "pid_itae", "adaptive_gaing")
+            for task in ("a", "random_000")]  # fmt: skip
+    _print_summary("run1", "train123456", pd.DataFrame(rows), 1.0)
+    line = capsys.readouterr().out.strip()
+    assert line.count("\n") == 0
+    for label in ("adaptive:", "adaptive_off:", "pid_itae:", "adaptive_gaing:"):
+        assert f"| {label} success 1.00, collisions 0.00 on 1 targets, tasks reached 1/1" in line
+    assert "decay 20/s" in line
