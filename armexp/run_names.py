@@ -1,9 +1,10 @@
 """Run names that say what a run is, so a sweep's runs read at a glance in the MLflow UI.
 
 ``<stage>-<subject>-s<seed>``: ``simulate-pid-switching-s3`` (controller, scenario, seed),
-``tune-pid-s0`` (controller, ``tuner.seed``), ``train-sac_quick-s0`` and ``eval-sac_quick-s0``
-(the policy's agent preset, seed), ``report``, ``pipeline-s0``, a study's ``study-s0-4``. A job of
-a sweep adds the swept values the name does not already show (``tune-pid-s0-tuner.pa=0.1``).
+``tune-pid-itae-s0`` (controller, criterion, ``tuner.seed``), ``train-sac_quick-s0`` and
+``eval-sac_quick-s0`` (the policy's agent preset, seed), ``report``, ``pipeline-s0``, a study's
+``study-s0-4``. A job of a sweep adds the swept values the name does not already show
+(``tune-pid-itae-s0-tuner.pa=0.1``).
 The user's ``<stage>.run_name`` wins.
 """
 
@@ -19,7 +20,7 @@ AGENT_PRESET_TAG = "armexp.agent_preset"
 #: Config keys each stage's name shows already; a sweep over one of them adds no suffix.
 SHOWN: dict[str, tuple[str, ...]] = {
     "simulate": ("controller", "controller.name", "scenario", "scenario.kind", "seed"),
-    "tune": ("controller", "controller.name", "tuner.seed"),
+    "tune": ("controller", "controller.name", "tuner.objective.criterion", "tuner.seed"),
     "train": ("agent", "seed"),
     "eval": ("seed",),
     "pipeline": ("seed", "pipeline.seeds"),
@@ -44,10 +45,10 @@ def _subject(cfg: DictConfig, stage: str, tags: Mapping[str, str]) -> list[str]:
     if stage == "simulate":
         return [str(cfg.controller.name), str(cfg.scenario.kind), seed]
     if stage == "tune":
-        return [str(cfg.controller.name), f"s{cfg.tuner.seed}"]
+        return [str(cfg.controller.name), str(cfg.tuner.objective.criterion), f"s{cfg.tuner.seed}"]
     if stage in ("train", "eval", "play"):
         preset = tags.get(AGENT_PRESET_TAG)
-        extra = [str(cfg.play.controller)] if stage == "play" else []
+        extra = [str(cfg.play.controller)] if stage == "play" and cfg.play.controller else []
         return [*([preset] if preset else []), *extra, seed]
     if stage == "pipeline":
         seeds = [int(s) for s in cfg.pipeline.seeds]

@@ -54,9 +54,11 @@ STAGE_INPUTS: dict[str, tuple[str, ...]] = {
     "tune": ("seed", "robot", "controller", "tuner"),
     "train": ("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
               "train.tune_run"),
-    "eval": ("seed", "tasks", "eval.train_run", "eval.pid_gains", "eval.pid_tune_run",
-             "eval.adaptive_gains", "controller.gains", "eval.controllers", "eval.paper_tasks",
-             "eval.deterministic", "eval.initial_offset", "eval.convergence_window"),
+    "eval": ("seed", "tasks", "eval.train_run", "eval.baselines", "eval.ablation",
+             "eval.baseline_gains", "eval.tune_runs", "eval.adaptive_gains", "controller.gains",
+             "eval.paper_tasks", "eval.deterministic", "eval.initial_offset", "eval.large_offset",
+             "eval.convergence_window", "eval.convergence_tolerance", "tuner.objective.criterion",
+             "tuner.objective.horizon"),
 }  # fmt: skip
 _parents: list[str] = []
 MAX_PARAM_LENGTH = 6000
@@ -385,9 +387,14 @@ def find_stage_run(
     match: Mapping[str, str] | None = None,
     key: str = "run",
     statuses: tuple[str, ...] = ("FINISHED",),
+    accept: Callable[[Run], bool] | None = None,
+    wanted: str = "",
 ) -> Run:
     """The upstream run a stage consumes: ``run_id`` if given, else the latest FINISHED run of
-    ``stage`` in the configured experiment whose params equal ``match``.
+    ``stage`` in the configured experiment whose params equal ``match`` (and, with ``accept``,
+    for which ``accept(run)`` holds: a condition a search filter cannot say, such as a param that
+    older runs lack; ``wanted`` describes it in the error). A given ``run_id`` is not held to
+    ``match`` or ``accept``: the caller checks it and names what is wrong.
 
     Raises `ConfigError` with one sentence when the id does not exist, belongs to another stage,
     is not in one of ``statuses``, or when no run matches. ``key`` names the config key that
@@ -418,23 +425,42 @@ def find_stage_run(
         return run
     clauses = [f"tags.`{STAGE_TAG}` = '{stage}'", "attributes.status = 'FINISHED'"]
     clauses += [f"params.`{k}` = '{v}'" for k, v in match.items()]
-    runs = retry(
-        lambda: client.search_runs(
-            [experiment_id],
-            filter_string=" and ".join(clauses),
-            order_by=["attributes.start_time DESC"],
-            max_results=1,
-        )
-    )
-    if not runs:
-        wanted = ", ".join(f"{k}={v}" for k, v in match.items()) or "any config"
+    found = _latest(client, experiment_id, " and ".join(clauses), accept)
+    if found is None:
+        what = ", ".join([*(f"{k}={v}" for k, v in match.items()), *([wanted] if wanted else [])])
         raise ConfigError(
-            f"{key} is not set and no FINISHED {stage} run with {wanted} exists in experiment "
-            f"'{cfg.tracking.experiment}' at {store_uri(cfg)}; run `armexp {stage}` with those "
-            f"settings first or pass {key}=<run id>."
+            f"{key} is not set and no FINISHED {stage} run with {what or 'any config'} exists in "
+            f"experiment '{cfg.tracking.experiment}' at {store_uri(cfg)}; run `armexp {stage}` "
+            f"with those settings first or pass {key}=<run id>."
         )
-    log.info("using %s run %s (latest matching %s)", stage, runs[0].info.run_id, match)
-    return runs[0]
+    log.info("using %s run %s (latest matching %s)", stage, found.info.run_id, match)
+    return found
+
+
+def _latest(
+    client: MlflowClient,
+    experiment_id: str,
+    filter_string: str,
+    accept: Callable[[Run], bool] | None,
+) -> Run | None:
+    """The newest run that the filter selects and ``accept`` (if given) takes, page by page."""
+    token = None
+    while True:
+        page = retry(
+            lambda t=token: client.search_runs(  # type: ignore[misc]
+                [experiment_id],
+                filter_string=filter_string,
+                order_by=["attributes.start_time DESC"],
+                max_results=1 if accept is None else 100,
+                page_token=t,
+            )
+        )
+        for run in page:
+            if accept is None or accept(run):
+                return run
+        token = page.token
+        if accept is None or not token:
+            return None
 
 
 _download_root: Path | None = None
@@ -456,27 +482,3 @@ def download_artifact(run_id: str, path: str, cfg: DictConfig) -> Path:
     return Path(
         mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=path, dst_path=dst)
     )
-
-
-def tuned_gains(
-    cfg: DictConfig, run_id: str | None = None, key: str = "tune_run", controller: str | None = None
-) -> tuple[Run, dict[str, Any]]:
-    """Gains of a tune run: ``run_id``, or the latest FINISHED tune run for ``controller``
-    (default: the configured one) and the configured robot. Returns the run and its
-    ``gains.yaml`` in config form."""
-    import yaml
-
-    match = {
-        "controller.name": controller or str(cfg.controller.name),
-        "robot.name": str(cfg.robot.name),
-    }
-    run = find_stage_run(cfg, "tune", run_id=run_id, match=match, key=key)
-    for param, wanted in match.items():
-        got = run.data.params.get(param)
-        if got != wanted:
-            raise ConfigError(
-                f"{key}={run.info.run_id} is not allowed: that tune run has {param}={got}, and "
-                f"{param}={wanted} is needed here."
-            )
-    path = download_artifact(run.info.run_id, "gains.yaml", cfg)
-    return run, yaml.safe_load(path.read_text())

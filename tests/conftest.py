@@ -8,7 +8,7 @@ from omegaconf import DictConfig
 
 from armexp.cli import main
 from armexp.config import compose_config
-from tests.helpers import SMALL_TRAIN, SMALL_TUNE
+from tests.helpers import SMALL_TRAIN, SMALL_TUNE, pid_baseline
 
 
 @pytest.fixture
@@ -29,11 +29,13 @@ def compose(runs_dir: Path) -> Callable[..., DictConfig]:
 
 @pytest.fixture(scope="session")
 def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A store written by short real runs: tune (adaptive, PID) → train → eval (runs folder)."""
+    """A store written by short real runs: tune (adaptive, PID) → train → eval (runs folder).
+    Both tune under the default criterion, and the eval runs the PID baseline of that criterion
+    (`tests.helpers.pid_baseline`) beside the policy's controller and its ablation."""
     runs = tmp_path_factory.mktemp("store") / "runs"
     where = f"tracking.runs_dir={runs}"
     assert main(["tune", *SMALL_TUNE, where]) == 0
     assert main(["tune", "controller=pid", *SMALL_TUNE, where]) == 0
     assert main(["train", *SMALL_TRAIN, where]) == 0
-    assert main(["eval", "tasks.n_random=2", where]) == 0
+    assert main(["eval", "tasks.n_random=2", f"eval.baselines=[{pid_baseline()}]", where]) == 0
     return runs

@@ -23,6 +23,27 @@ SMALL_TRAIN = [
 ]
 
 
+def pid_baseline() -> str:
+    """The PID baseline tuned under the default criterion (``pid_itae``): the one a plain
+    ``armexp tune controller=pid`` run serves."""
+    from armexp.config import compose_config
+    from armexp.gains import criterion_of
+
+    return f"pid_{criterion_of(compose_config([]))}"
+
+
+def logged_tune_run(cfg: Any, gains_yaml: str) -> str:
+    """A FINISHED tune run of ``cfg`` (its params: controller, robot, criterion…) whose
+    ``gains.yaml`` is ``gains_yaml``, without tuning: for tests of what reads tune runs."""
+    import mlflow
+
+    from armexp import tracking
+
+    with tracking.stage_run(cfg, "tune") as run:
+        mlflow.log_text(gains_yaml, "gains.yaml")
+    return str(run.info.run_id)
+
+
 def stage_runs(store: Any, stage: str, newest_first: bool = True) -> list[Any]:
     """The runs of one stage in experiment 'armexp' of a store: a runs folder (SQLite) or a URI."""
     from mlflow.tracking import MlflowClient

@@ -36,6 +36,7 @@ PIPELINE = [
     *SMALL_TRAIN,
     "eval.animations=false",
     "tasks.n_random=1",
+    "eval.baselines=[pid_gaing]",
 ]
 RAY = ["hydra/launcher=ray", "hydra.launcher.ray.remote.num_cpus=1"]
 TAGS = ("armexp.error", "armexp.sweep", "armexp.process",

@@ -323,3 +323,16 @@ def test_unknown_rule_is_a_one_sentence_value_error() -> None:
     with pytest.raises(ValueError, match=r"abandon='best'.*worst, per_component") as info:
         cuckoo_search(sphere, [0.0], [1.0], abandon="best")
     assert "\n" not in str(info.value)
+
+
+def test_a_start_point_takes_the_first_nest_and_leaves_the_draws_alone() -> None:
+    def sphere(x: np.ndarray) -> np.ndarray:
+        return (x**2).sum(axis=1)
+
+    lo, hi = [-5.0, -5.0], [5.0, 5.0]
+    plain = cuckoo_search(sphere, lo, hi, n_nests=6, n_iterations=0, seed=3)
+    started = cuckoo_search(sphere, lo, hi, n_nests=6, n_iterations=0, seed=3, start=[9.0, 0.5])
+    assert np.array_equal(started.evaluations[0], [5.0, 0.5])  # clipped to the box
+    assert np.array_equal(started.evaluations[1:], plain.evaluations[1:])
+    with pytest.raises(ValueError, match="start has 3 entries"):
+        cuckoo_search(sphere, lo, hi, n_nests=6, n_iterations=0, start=[0.0, 0.0, 0.0])

@@ -54,7 +54,10 @@ def test_a_pipeline_fits_on_one_screen_with_one_line_per_stage(tmp_path: Path) -
     assert lines[-1].endswith(str(runs.resolve() / "report" / "index.html")), out
     # Each stage's run is named by what it is (simulate runs: the next test).
     assert _names(runs, "pipeline") == ["pipeline-s2"]
-    assert _names(runs, "tune") == ["tune-subsystem_adaptive-s1", "tune-pid-s1"]
+    assert _names(runs, "tune") == [
+        "tune-subsystem_adaptive-itae-s1", "tune-pid-gaing-s1", "tune-pid-itae-s1",
+        "tune-computed_torque-itae-s1", "tune-subsystem_adaptive-gaing-s1",
+    ]  # fmt: skip
     assert _names(runs, "train") == ["train-sac_smoke-s2"]
     assert _names(runs, "eval") == ["eval-sac_smoke-s2"]
     assert _names(runs, "report") == ["report"]
@@ -82,10 +85,10 @@ def test_a_sweep_names_its_jobs_by_the_values_it_varies(tmp_path: Path) -> None:
     assert _names(runs, "sweep") == ["sweep-tune"]
     # tuner.seed shows as s<seed> already; the other swept key is added.
     assert _names(runs, "tune") == [
-        "tune-pid-s0-tuner.pa=0.1",
-        "tune-pid-s0-tuner.pa=0.3",
-        "tune-pid-s1-tuner.pa=0.1",
-        "tune-pid-s1-tuner.pa=0.3",
+        "tune-pid-itae-s0-tuner.pa=0.1",
+        "tune-pid-itae-s0-tuner.pa=0.3",
+        "tune-pid-itae-s1-tuner.pa=0.1",
+        "tune-pid-itae-s1-tuner.pa=0.3",
     ]
 
 

@@ -9,7 +9,9 @@ import pytest
 
 from armexp.cli import main
 from armexp.config import compose_config, group_options
-from tests.helpers import SMALL_TRAIN, interrupt_training_at, stage_runs
+from armexp.gains import criterion_of, run_criterion, with_criterion
+from armexp.stages.pipeline import eval_tune_runs, paper_gains_config, tune_steps
+from tests.helpers import SMALL_TRAIN, interrupt_training_at, pid_baseline, stage_runs
 
 SMALL = [
     "experiment=smoke",
@@ -20,6 +22,13 @@ SMALL = [
     "eval.animations=false",  # the renderer has its own tests
     "tasks.n_random=1",
 ]
+#: Both PID baselines (computed torque has a pipeline test of its own).
+BASELINES_RUN = "eval.baselines=[pid_gaing,pid_itae]"
+SMALL.append(BASELINES_RUN)
+
+
+def _other(criterion: str) -> str:
+    return "itae" if criterion == "gaing" else "gaing"
 
 
 def _runs(runs: Path, stage: str) -> list[Any]:
@@ -38,17 +47,36 @@ def test_pipeline_makes_one_parent_and_a_finished_child_per_stage(pipeline_store
     assert parent.info.status == "FINISHED"
     pid = parent.info.run_id
     children = {s: _runs(pipeline_store, s) for s in ("tune", "train", "eval", "report")}
-    assert [len(children[s]) for s in ("tune", "train", "eval", "report")] == [2, 1, 1, 1]
+    n_tunes = 4
+    assert [len(children[s]) for s in ("tune", "train", "eval", "report")] == [n_tunes, 1, 1, 1]
     for group in children.values():
         for run in group:
             assert run.info.status == "FINISHED"
             assert run.data.tags["mlflow.parentRunId"] == pid
-    tunes = {r.data.params["controller.name"]: r.info.run_id for r in children["tune"]}
+    # Every controller of the comparison tuned under each criterion a baseline needs.
+    tunes = {(r.data.params["controller.name"], run_criterion(r)): r.info.run_id
+             for r in children["tune"]}  # fmt: skip
+    comparison = criterion_of(compose_config(SMALL))
+    other = _other(comparison)
+    expected = tune_steps(compose_config(SMALL))
+    assert set(expected) == {"tune", "tune_pid_gaing", "tune_pid_itae", f"tune_adaptive_{other}"}
+    assert set(tunes) == set(expected.values())
+    steps = {k.removeprefix("armexp.run."): v for k, v in parent.data.tags.items()
+             if k.startswith("armexp.run.tune")}  # fmt: skip
+    assert steps == {step: tunes[kind] for step, kind in expected.items()}
     (train,), (ev,), (report,) = children["train"], children["eval"], children["report"]
     # Lineage: every child names its upstream runs, all inside this pipeline.
-    assert train.data.tags["armexp.tune_run"] == tunes["subsystem_adaptive"]
+    assert train.data.tags["armexp.tune_run"] == tunes["subsystem_adaptive", comparison]
     assert ev.data.tags["armexp.train_run"] == train.info.run_id
-    assert ev.data.tags["armexp.pid_tune_run"] == tunes["pid"]
+    assert ev.data.tags["armexp.tune_run.pid_gaing"] == tunes["pid", "gaing"]
+    assert ev.data.params["eval.tune_runs.pid_gaing"] == tunes["pid", "gaing"]
+    labels = {k.split(".")[0] for k in ev.data.metrics}
+    references = (("pid_itae", tunes["pid", "itae"]),
+                  (f"adaptive_{other}", tunes["subsystem_adaptive", other]))  # fmt: skip
+    for label, run_id in references:
+        assert ev.data.tags[f"armexp.tune_run.{label}"] == run_id
+        assert ev.data.params[f"eval.tune_runs.{label}"] == run_id
+    assert labels == {"adaptive", "adaptive_off", "pid_gaing", "pid_itae", f"adaptive_{other}"}
     assert report.data.tags["armexp.report_runs"] == ev.info.run_id
     assert parent.data.tags["armexp.run.train"] == train.info.run_id
     index = pipeline_store / "report" / "index.html"
@@ -66,9 +94,8 @@ def test_pipeline_reuse_skips_stages_whose_inputs_match(pipeline_store: Path) ->
     second = _runs(pipeline_store, "pipeline")[-1]
     first_train = _runs(pipeline_store, "train")[0]
     assert second.data.tags["armexp.reused.train"] == first_train.info.run_id
-    assert {"armexp.reused.tune", "armexp.reused.tune_pid", "armexp.reused.eval"} <= set(
-        second.data.tags
-    )
+    reused = {*tune_steps(compose_config(SMALL)), "train", "eval"}
+    assert {f"armexp.reused.{s}" for s in reused} <= set(second.data.tags)
     # A changed input runs that stage (and everything downstream of it) again.
     assert (
         main(
@@ -111,7 +138,9 @@ def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) 
     """Choosing a robot is enough: both controllers get that arm's gains, search box and torque
     limits in every stage, and the eval torques stay within its limits."""
     runs = tmp_path / "runs"
-    assert main(["pipeline", *SMALL, f"robot={robot}", f"tracking.runs_dir={runs}"]) == 0
+    pid = pid_baseline()  # one baseline, of the comparison's criterion: two tune runs
+    command = ["pipeline", *SMALL, f"robot={robot}", f"eval.baselines=[{pid}]"]
+    assert main([*command, f"tracking.runs_dir={runs}"]) == 0
     (parent,) = _runs(runs, "pipeline")
     assert parent.info.status == "FINISHED"
     n = len(compose_config([f"robot={robot}"]).robot.lengths)
@@ -122,7 +151,7 @@ def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) 
         assert run.data.params["robot.name"] == robot
         assert run.data.metrics["best_gain_margin"] >= 1.25
     (ev,) = _runs(runs, "eval")
-    for label in ("adaptive", "pid"):
+    for label in ("adaptive", "adaptive_off", pid):
         for j in range(1, n + 1):
             assert ev.data.metrics[f"{label}.a.max_abs_tau_{j}"] <= limit[j - 1]
 
@@ -146,3 +175,77 @@ def test_reuse_resumes_an_interrupted_train_run_instead_of_starting_over(
     assert second.data.tags["armexp.resumed.train"] == train.info.run_id
     (ev,) = _runs(runs, "eval")
     assert ev.data.tags["armexp.train_run"] == train.info.run_id
+
+
+def _steps(criterion: str, *overrides: str) -> dict[str, tuple[str, str]]:
+    return tune_steps(with_criterion(compose_config(list(overrides)), criterion))
+
+
+def test_tune_steps_tune_every_baseline_and_the_references_it_needs() -> None:
+    both = "eval.baselines=[pid_gaing,pid_itae]"
+    assert _steps("gaing", both) == {
+        "tune": ("subsystem_adaptive", "gaing"), "tune_pid_gaing": ("pid", "gaing"),
+        "tune_pid_itae": ("pid", "itae"), "tune_adaptive_itae": ("subsystem_adaptive", "itae"),
+    }  # fmt: skip
+    assert _steps("itae", both) == {
+        "tune": ("subsystem_adaptive", "itae"), "tune_pid_gaing": ("pid", "gaing"),
+        "tune_pid_itae": ("pid", "itae"), "tune_adaptive_gaing": ("subsystem_adaptive", "gaing"),
+    }  # fmt: skip
+    # Trained with configured gains: the reference of the comparison's criterion is `tune`.
+    assert set(_steps("itae", both, "train.gains=config")) == {
+        "tune", "tune_pid_gaing", "tune_pid_itae", "tune_adaptive_gaing"
+    }  # fmt: skip
+    assert _steps("itae", both, "eval.baseline_gains=config") == {
+        "tune": ("subsystem_adaptive", "itae")
+    }
+    assert _steps("itae", "eval.baselines=[]") == {"tune": ("subsystem_adaptive", "itae")}
+    # A PID policy: its own tune run serves the baseline of the same criterion.
+    assert _steps("itae", both, "controller=pid") == {
+        "tune": ("pid", "itae"), "tune_pid_gaing": ("pid", "gaing")
+    }  # fmt: skip
+
+
+def test_eval_tune_runs_maps_labels_to_the_tune_steps_runs() -> None:
+    cfg = with_criterion(compose_config(["eval.baselines=[pid_gaing,pid_itae]"]), "itae")
+    ids = {"tune": "A", "tune_pid_gaing": "B", "tune_pid_itae": "C", "tune_adaptive_gaing": "D"}
+    assert eval_tune_runs(cfg, ids) == {
+        "pid_gaing": "B", "pid_itae": "C", "adaptive_itae": "A", "adaptive_gaing": "D"
+    }  # fmt: skip
+    pid = with_criterion(compose_config(["controller=pid", "eval.baselines=[pid_itae]"]), "itae")
+    assert eval_tune_runs(pid, {"tune": "P"}) == {"pid_itae": "P"}
+
+
+def test_the_paper_gains_row_runs_the_policy_alone_with_configured_gains() -> None:
+    cfg = compose_config(["eval.tune_runs.pid_itae=X"])
+    paper = paper_gains_config(cfg)
+    assert list(paper.eval.baselines) == [] and paper.eval.ablation is False
+    assert paper.eval.adaptive_gains == "config" and dict(paper.eval.tune_runs) == {}
+    assert list(cfg.eval.baselines) == ["pid_gaing", "pid_itae", "computed_torque"]
+
+
+def test_computed_torque_is_tuned_under_the_comparisons_criterion() -> None:
+    steps = _steps("itae", "eval.baselines=[pid_gaing,pid_itae,computed_torque]")
+    assert steps["tune_computed_torque"] == ("computed_torque", "itae")
+    assert _steps("gaing", "eval.baselines=[computed_torque]")["tune_computed_torque"] == (
+        "computed_torque", "gaing"
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("robot", group_options("robot"))
+def test_a_pipeline_with_every_baseline_runs_on_every_shipped_robot(
+    tmp_path: Path, robot: str
+) -> None:
+    runs = tmp_path / "runs"
+    command = [
+        "pipeline",
+        *SMALL,
+        f"robot={robot}",
+        "eval.baselines=[pid_gaing,pid_itae,computed_torque]",
+    ]
+    assert main([*command, f"tracking.runs_dir={runs}"]) == 0
+    (parent,) = _runs(runs, "pipeline")
+    assert "armexp.run.tune_computed_torque" in parent.data.tags
+    (ev,) = _runs(runs, "eval")
+    ct = parent.data.tags["armexp.run.tune_computed_torque"]
+    assert ev.data.tags["armexp.tune_run.computed_torque"] == ct
+    assert {k.split(".")[0] for k in ev.data.metrics} >= {"adaptive", "computed_torque"}

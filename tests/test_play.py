@@ -14,7 +14,7 @@ from PIL import Image
 
 from armexp.cli import main
 from armexp.render.animation import frame_rows
-from tests.helpers import stage_runs
+from tests.helpers import pid_baseline, stage_runs
 
 
 def _download(store: Path, run_id: str, path: str, dst: Path) -> Path:
@@ -34,9 +34,9 @@ def _frames(gif: Path) -> int:
         return int(image.n_frames)
 
 
-def test_eval_animates_each_paper_task_for_both_controllers(store: Path, tmp_path: Path) -> None:
+def test_eval_animates_each_paper_task_for_every_label(store: Path, tmp_path: Path) -> None:
     (ev,) = stage_runs(store, "eval")
-    for label in ("adaptive", "pid"):
+    for label in ("adaptive", "adaptive_off", pid_baseline()):
         names = _listed(store, ev.info.run_id, f"animations/{label}")
         assert names == {f"{task}.{fmt}" for task in "abcd" for fmt in ("gif", "mp4")}
         gif = _download(store, ev.info.run_id, f"animations/{label}/b.gif", tmp_path / label)
@@ -57,7 +57,9 @@ def test_play_animates_a_task_and_an_extra_target_in_a_play_run(
     assert run.info.status == "FINISHED"
     assert run.data.tags["armexp.train_run"] == train.info.run_id
     preset = train.data.tags["armexp.agent_preset"]
-    assert run.info.run_name == f"play-{preset}-subsystem_adaptive-s0"  # what it is, at a glance
+    # What it is, at a glance: the policy's own controller when play.controller is not given.
+    assert run.info.run_name == f"play-{preset}-adaptive-s0"
+    assert run.data.params["play.controller"] == "adaptive"
     assert line.startswith(f"play: run {run.info.run_id} | adaptive")
     folder = Path(line.rsplit(" in ", 1)[1])
     assert sorted(p.name for p in folder.iterdir()) == [
@@ -78,12 +80,32 @@ def test_play_animates_a_task_and_an_extra_target_in_a_play_run(
     assert _frames(folder / "c.gif") == len(frame_rows(played.t.to_numpy()))
 
 
-def test_play_with_the_pid_baseline_writes_only_the_formats_asked_for(store: Path) -> None:
+def test_play_with_a_baseline_writes_only_the_formats_asked_for(store: Path) -> None:
     where = f"tracking.runs_dir={store}"
-    assert main(["play", "play.controller=pid", "play.tasks=[a]", "play.formats=[gif]", where]) == 0
+    pid = pid_baseline()
+    command = ["play", f"play.controller={pid}", "play.tasks=[a]", "play.formats=[gif]", where]
+    assert main(command) == 0
     run = stage_runs(store, "play")[0]
-    assert _listed(store, run.info.run_id, "animations/pid") == {"a.gif"}
-    assert "armexp.pid_tune_run" in run.data.tags
+    assert _listed(store, run.info.run_id, f"animations/{pid}") == {"a.gif"}
+    pid_tune = next(
+        r for r in stage_runs(store, "tune") if r.data.params["controller.name"] == "pid"
+    )
+    assert run.data.tags[f"armexp.tune_run.{pid}"] == pid_tune.info.run_id
+
+
+def test_play_with_the_ablation_plays_the_episode_eval_measured(
+    store: Path, tmp_path: Path
+) -> None:
+    where = f"tracking.runs_dir={store}"
+    command = ["play", "play.controller=adaptive_off", "play.tasks=[d]", "play.formats=[gif]"]
+    assert main([*command, where]) == 0
+    run = stage_runs(store, "play")[0]
+    (ev,) = stage_runs(store, "eval")
+    path = "trajectories/adaptive_off/d.parquet"
+    played = pd.read_parquet(_download(store, run.info.run_id, path, tmp_path / "p"))
+    evaluated = pd.read_parquet(_download(store, ev.info.run_id, path, tmp_path / "e"))
+    np.testing.assert_array_equal(played.to_numpy(), evaluated.to_numpy())
+    assert (played.rho_hat == 0).all()
 
 
 @pytest.mark.parametrize(
@@ -94,6 +116,9 @@ def test_play_with_the_pid_baseline_writes_only_the_formats_asked_for(store: Pat
         ("play.targets=[[2.5,0]]", "outside the arm's reach"),
         # In reach and clear of the obstacles, but not within the joint limits' workspace.
         ("play.targets=[[-1.2,-0.6]]", "the policy's environment draws no target within"),
+        ("play.controller=foo", "play.controller='foo' is not allowed: choose the policy's own"),
+        # A label of another policy's own controller: this policy was trained with the adaptive law.
+        ("play.controller=pid", "play.controller=pid is not allowed: the policy of train run"),
     ],
 )
 def test_bad_play_input_is_one_sentence_and_starts_no_run(

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from armexp.cli import main
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import SMALL_TRAIN, pid_baseline, stage_runs
 
 SMALL = [
     "experiment=smoke",
@@ -25,6 +25,7 @@ SMALL = [
     "pipeline.paper_gains_row=true",
     "train.eval_every=300",
     "train.eval_targets=2",
+    f"eval.baselines=[{pid_baseline()}]",
 ]
 
 
@@ -58,7 +59,7 @@ def test_a_study_with_a_failed_seed_reports_the_others_and_is_finished_by_a_reru
     tunes = [r for r in stage_runs(runs, "tune") if r.data.params["controller.name"] == "pid"]
     assert sorted(r.data.params["tuner.seed"] for r in tunes) == ["0", "1", "2"]
     evals = stage_runs(runs, "eval")
-    assert len(evals) == 4  # seeds 0 and 2: tuned gains (both controllers) and paper gains
+    assert len(evals) == 4  # seeds 0 and 2: tuned gains (with the baseline) and paper gains
     assert sorted(e.data.tags["armexp.adaptive_gains"] for e in evals) == [
         "config", "config", "tuned", "tuned",
     ]  # fmt: skip
@@ -100,8 +101,8 @@ def test_a_report_mixing_robots_is_one_sentence(
     evals = []
     for robot in ("two_link_paper", "three_link"):
         assert main(["train", f"robot={robot}", *common]) == 0
-        assert main(["eval", f"robot={robot}", "eval.pid_gains=config", "tasks.n_random=0",
-                     "eval.controllers=[subsystem_adaptive]", where]) == 0  # fmt: skip
+        assert main(["eval", f"robot={robot}", "eval.baselines=[]", "eval.ablation=false",
+                     "tasks.n_random=0", where]) == 0  # fmt: skip
         evals.append(stage_runs(runs, "eval")[0].info.run_id)
     capsys.readouterr()
     assert main(["report", f"report.eval_runs=[{','.join(evals)}]", where]) == 2

@@ -11,7 +11,6 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
-from armexp.config import ConfigError
 
 
 def _only_run(cfg: DictConfig) -> mlflow.entities.Run:
@@ -85,33 +84,6 @@ def test_a_locked_store_does_not_lose_the_final_status(
     assert calls == [outcome, outcome]
     assert _only_run(cfg).info.status == outcome
     assert mlflow.active_run() is None
-
-
-def test_lookup_errors_name_the_key(compose: Callable[..., DictConfig]) -> None:
-    cfg = compose()
-    with pytest.raises(ConfigError, match=r"no FINISHED tune run with controller\.name="):
-        tracking.tuned_gains(cfg)
-    with tracking.stage_run(cfg, "simulate") as run:
-        pass
-    with pytest.raises(ConfigError, match="it is a simulate run, and a tune run is needed"):
-        tracking.tuned_gains(cfg, run_id=run.info.run_id)
-    with pytest.raises(ConfigError, match=r"tune_run=nope is not allowed: no run"):
-        tracking.tuned_gains(cfg, run_id="nope")
-
-
-def test_latest_matching_tune_run_is_found(compose: Callable[..., DictConfig]) -> None:
-    cfg = compose()
-    ids = []
-    for a0 in (100.0, 200.0):
-        with tracking.stage_run(cfg, "tune") as run:
-            mlflow.log_text(f"a0: {a0}\n", "gains.yaml")
-            ids.append(run.info.run_id)
-    with tracking.stage_run(compose("controller=pid"), "tune"):
-        mlflow.log_text("kp: [1, 2]\n", "gains.yaml")
-    run, gains = tracking.tuned_gains(cfg)
-    assert run.info.run_id == ids[-1] and gains == {"a0": 200.0}
-    run, gains = tracking.tuned_gains(cfg, run_id=ids[0])
-    assert gains == {"a0": 100.0}
 
 
 def test_four_processes_racing_on_a_fresh_store_all_finish(tmp_path: Path) -> None:
@@ -237,8 +209,9 @@ def test_no_download_folder_is_left_in_the_temp_directory(tmp_path: Path) -> Non
     assert main(train) == 0
     temp = tmp_path / "tmp"
     temp.mkdir()
-    command = [sys.executable, "-m", "armexp", "eval", "eval.pid_gains=config",
-               "tasks.n_random=1", f"tracking.runs_dir={runs}"]  # fmt: skip
+    command = [sys.executable, "-m", "armexp", "eval", "eval.baselines=[pid_gaing]",
+               "eval.baseline_gains=config", "tasks.n_random=1",
+               f"tracking.runs_dir={runs}"]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "TMPDIR": str(temp)})  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]

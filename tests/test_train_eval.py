@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -15,8 +16,12 @@ from mlflow.tracking import MlflowClient
 
 from armexp.agents.sac import ResumableSAC
 from armexp.cli import main
+from armexp.sim.convergence import definition_one
 from armexp.sim.trajectory import trajectory_columns
-from tests.helpers import SMALL_TRAIN, interrupt_training_at, stage_runs
+from tests.helpers import SMALL_TRAIN, interrupt_training_at, pid_baseline, stage_runs
+
+#: A baseline with configured gains: an eval that needs no tune run.
+CONFIG_BASELINE = ["eval.baselines=[pid_gaing]", "eval.baseline_gains=config"]
 
 
 def _client(runs_dir: Path) -> MlflowClient:
@@ -64,28 +69,41 @@ def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(
     assert action.shape == (2,) and np.all(np.abs(action) <= 1)
 
 
-def test_eval_logs_per_task_metrics_and_trajectories_for_both_controllers(
+def test_eval_logs_per_label_metrics_trajectories_and_controllers(
     store: Path, tmp_path: Path
 ) -> None:
     (ev,) = _runs(store, "eval")
     (train,) = _runs(store, "train")
-    pid_tune = next(r for r in _runs(store, "tune") if r.data.params["controller.name"] == "pid")
+    tunes = {r.data.params["controller.name"]: r.info.run_id for r in _runs(store, "tune")}
+    pid = pid_baseline()
+    labels = ["adaptive", "adaptive_off", pid]
     assert ev.info.status == "FINISHED"
-    assert ev.data.tags["armexp.train_run"] == train.info.run_id
-    assert ev.data.tags["armexp.pid_tune_run"] == pid_tune.info.run_id
+    tags = ev.data.tags
+    assert tags["armexp.train_run"] == train.info.run_id
+    assert tags["armexp.tune_run"] == tunes["subsystem_adaptive"]
+    assert tags["armexp.tune_run.adaptive"] == tags["armexp.tune_run.adaptive_off"]
+    assert tags["armexp.tune_run.adaptive"] == tunes["subsystem_adaptive"]
+    assert tags[f"armexp.tune_run.{pid}"] == tunes["pid"]
+    criterion = pid.removeprefix("pid_")
+    described = yaml.safe_load(
+        _download(store, ev.info.run_id, "controllers.yaml", tmp_path / "c").read_text()
+    )
+    assert list(described) == labels
+    assert [described[k]["role"] for k in labels] == ["proposed", "ablation", "baseline"]
+    assert [described[k]["controller"] for k in labels] == ["subsystem_adaptive"] * 2 + ["pid"]
+    assert {described[k]["criterion"] for k in labels} == {criterion}
+    assert [described[k]["compare_with"] for k in labels] == [None, None, "adaptive"]
+    assert described[pid]["tune_run"] == tunes["pid"]
+    assert described["adaptive"]["horizon"] == 0.2  # the tune run's (SMALL_TUNE)
+    on, off = described["adaptive"]["gains"], described["adaptive_off"]["gains"]
+    assert off == {**on, "b1": 0.0} and on["b1"] > 0
     m = ev.data.metrics
-    for label in ("adaptive", "pid"):
+    assert not [k for k in m if k.endswith(("convergence_time", "e1_settling_time"))]
+    for label in labels:
         for task in "abcd":
-            for key in (
-                "success",
-                "final_error_cm",
-                "rms_e1",
-                "tip_rms_cm",
-                "max_abs_tau_1",
-                "max_abs_tau_2",
-                "collision",
-                "steps",
-            ):
+            for key in ("success", "final_error_cm", "rms_e1", "tip_rms_cm", "max_abs_tau_1",
+                        "max_abs_tau_2", "collision", "steps", "ultimate_bound", "itae",
+                        "ultimate_bound_large", "itae_large"):  # fmt: skip
                 assert f"{label}.{task}.{key}" in m, (label, task, key)
             path = _download(
                 store, ev.info.run_id, f"trajectories/{label}/{task}.parquet", tmp_path / label
@@ -97,13 +115,28 @@ def test_eval_logs_per_task_metrics_and_trajectories_for_both_controllers(
             assert frame.target_error.iloc[-1] * 100 == pytest.approx(
                 m[f"{label}.{task}.final_error_cm"], abs=2.0
             )
+            # Adaptation off: ρ̂ stays 0; on, it grows from 0.
+            assert (frame.rho_hat == 0).all() == (label != "adaptive")
         assert m[f"{label}.random.episodes"] == 2
+        # The perturbed runs: 1 s from the offsets, measured by Definition 1.
+        for suffix, offset in (("", 0.005), ("_large", 0.05)):
+            where = f"trajectories/{label}/b_offset{suffix}.parquet"
+            run = pd.read_parquet(_download(store, ev.info.run_id, where, tmp_path / where))
+            e1 = np.hypot(run.q_1 - run.q_d_1, run.q_2 - run.q_d_2).to_numpy()
+            assert len(run) == 1020 and e1[0] == pytest.approx(offset * np.sqrt(2))
+            again = definition_one(run.t.to_numpy(), e1, offset, 1.0, 1e-4)
+            for key, value in again.items():
+                logged = m.get(f"{label}.b.{key}{suffix}", math.nan)
+                assert logged == pytest.approx(value, nan_ok=True) or not math.isfinite(value)
     table = pd.read_csv(_download(store, ev.info.run_id, "episodes.csv", tmp_path))
-    assert len(table) == 2 * (4 + 2)
-    # Both controllers see the same targets.
+    assert len(table) == 3 * (4 + 2)
+    assert list(table.controller.unique()) == labels and set(table.criterion) == {criterion}
+    assert table[table.task.str.startswith("random_")].decay_rate.isna().all()
+    # Every label sees the same targets.
     a = table[table.controller == "adaptive"].set_index("task")
-    p = table[table.controller == "pid"].set_index("task")
-    np.testing.assert_array_equal(a.target_x, p.target_x)
+    for label in labels[1:]:
+        other = table[table.controller == label].set_index("task")
+        np.testing.assert_array_equal(a.target_x, other.target_x)
 
 
 def test_eval_without_a_train_run_is_one_sentence(
@@ -292,12 +325,12 @@ def test_an_interrupted_eval_keeps_the_episodes_it_ran(
 
     def interrupted_later(*args: Any, **kwargs: Any) -> Any:
         calls.append(1)
-        if len(calls) == 7:  # tasks (a)-(c) and their offset runs done
+        if len(calls) == 10:  # tasks (a)-(c) and their two offset runs each done
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
     monkeypatch.setattr(evaluate, "rollout", interrupted_later)
-    assert main(["eval", "eval.pid_gains=config", "tasks.n_random=2", where]) == 130
+    assert main(["eval", *CONFIG_BASELINE, "tasks.n_random=2", where]) == 130
     (ev,) = _runs(runs_dir, "eval")
     assert ev.info.status == "KILLED"
     rows = pd.read_csv(_download(runs_dir, ev.info.run_id, "episodes.csv", tmp_path))
@@ -310,5 +343,5 @@ def test_eval_does_not_take_a_policy_trained_among_other_obstacles(
     where = f"tracking.runs_dir={runs_dir}"
     assert main(["train", "controller.gains=paper", *SMALL_TRAIN, where]) == 0
     moved = "obstacles.circles.0.x=0.45"  # same set name, other circles
-    assert main(["eval", moved, "eval.pid_gains=config", "tasks.n_random=0", where]) == 2
+    assert main(["eval", moved, *CONFIG_BASELINE, "tasks.n_random=0", where]) == 2
     assert "eval.train_run" in capsys.readouterr().err

@@ -145,3 +145,23 @@ def test_effort_penalty_scales_the_criterion() -> None:
     assert c.peak_ratio[0] == pytest.approx(1.0)
     assert c.time_at_limit[0] == pytest.approx(200 / 300)
     assert c.score[0] == pytest.approx(c.criterion[0] * (1 + 0.1 + 200 / 300))
+
+
+def test_search_space_maps_points_to_gains_and_back(compose: Callable[..., DictConfig]) -> None:
+    """The adaptive law's search point (log10 of a0, a1, λ, γ) gives gains with r1 = 1 and the
+    same λ = c1 r1, γ = b1² c1; the paper's gains map to a point inside the box."""
+    space = search_space(compose())
+    assert space.names == ("a0", "a1", "lambda", "gamma")
+    paper = gain_vector(ADAPTIVE, PAPER_GAINS, 2)
+    point = space.point(paper)
+    assert np.all((point > space.search_lower) & (point < space.search_upper))
+    back = space.gains(point)[0]
+    assert back[4] == 1.0 and back[:2] == pytest.approx(paper[:2])
+    assert back[3] * back[4] == pytest.approx(paper[3] * paper[4])  # λ
+    assert back[2] ** 2 * back[3] == pytest.approx(paper[2] ** 2 * paper[3])  # γ
+    assert space.on_bound(back) == []
+    pid = search_space(compose("controller=pid"))
+    low = pid.gains(pid.search_lower)[0]
+    assert low == pytest.approx(pid.lower) and len(pid.on_bound(low)) == 6
+    zero_ki = gain_vector(PID, {"kp": [1e5, 1e4], "ki": [0.0, 0.0], "kd": [100.0, 10.0]}, 2)
+    assert pid.point(zero_ki)[2:4] == pytest.approx(np.log10(pid.lower[2:4]))  # clipped, no -inf

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from armexp.envs.reach import ReachEnv
-from armexp.sim.metrics import BAND_FRACTION, convergence_time, tracking_metrics
+from armexp.sim.convergence import definition_one
+from armexp.sim.metrics import tracking_metrics
 from armexp.sim.model import Array
 
 
@@ -54,7 +55,7 @@ def episode_metrics(episode: Episode, n: int, lengths: Array, threshold: float) 
     success, target_time (s, first time the tip error < threshold; NaN if never),
     final_error_cm, rms_e1 (rad) and tip_rms_cm (tracking), max_abs_tau_<j> (N·m),
     time_at_limit (s with some joint at its torque limit), collision, steps, return. The
-    convergence column comes from a perturbed run instead (`settling_time`).
+    convergence columns come from perturbed runs instead (`convergence_metrics`).
     """
     rows = episode.rows
     t = rows[:, 0]
@@ -78,34 +79,18 @@ def episode_metrics(episode: Episode, n: int, lengths: Array, threshold: float) 
     return out
 
 
-def settling_time(episode: Episode, n: int, window: float, nominal: Episode | None = None) -> float:
+def convergence_metrics(
+    episode: Episode, n: int, offset: float, window: float, tolerance: float
+) -> dict[str, float]:
     """Convergence from a defined perturbation (docs/design.md §8), on a run started with the
-    reference offset from the arm: the earliest time after which the perturbation's effect on the
-    tracking error stays within 2 % of where it started, until ``window`` s.
-
-    The effect is e1 of this run minus e1 of the same episode without the offset (``nominal``:
-    same policy, target and disturbance draws), so the controller's steady tracking error, which
-    can sit above 2 % of a small offset, is not mistaken for the perturbation. Without
-    ``nominal`` it is ‖e1‖ itself. inf when it is outside at the window's end (or the run ended
-    before it), NaN when the run started without an offset.
-    """
+    reference ``offset`` rad from the arm on every joint: Definition 1's decay rate, ultimate
+    bound and overshoot, the ‖e1‖ settling time and ITAE over its first ``window`` s
+    (`armexp.sim.convergence.definition_one`)."""
     rows = episode.rows
-    t = rows[:, 0]
-    if t.size < 2:
-        return float("nan")
+    if rows.size == 0:
+        return definition_one(np.zeros(0), np.zeros(0), offset, window, tolerance)
     e1 = rows[:, 1 : 1 + n] - rows[:, 1 + n : 1 + 2 * n]
-    if nominal is not None:
-        base = nominal.rows[: t.size]
-        if base.shape[0] < t.size:
-            return float("inf")
-        e1 = e1 - (base[:, 1 : 1 + n] - base[:, 1 + n : 1 + 2 * n])
-    norm = np.linalg.norm(e1, axis=1)
-    if norm[0] == 0.0:
-        return float("nan")
-    inside = t < window
-    if t[-1] + (t[1] - t[0]) < window - 1e-9:
-        return float("inf")
-    return convergence_time(t[inside], norm[inside], BAND_FRACTION * float(norm[0]))
+    return definition_one(rows[:, 0], np.linalg.norm(e1, axis=1), offset, window, tolerance)
 
 
 def _target_time(t: Array, inside: np.ndarray, reached: bool) -> float:

@@ -78,11 +78,20 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
     return cfg
 
 
+#: Config maps keyed by the user: ``eval.tune_runs.pid_itae=<id>`` (or ``={pid_itae: <id>}``)
+#: adds or replaces a key.
+USER_KEYED = ("eval.tune_runs", "play.tune_runs")
+
+
 def normalize_overrides(overrides: Sequence[str]) -> list[str]:
-    """Accept ``a.b=option`` for the nested group ``a/b`` (``controller.gains=paper``)."""
+    """Accept ``a.b=option`` for the nested group ``a/b`` (``controller.gains=paper``), and
+    ``eval.tune_runs.<label>=<id>`` without Hydra's ``++`` (`USER_KEYED`)."""
     out = []
     for o in overrides:
         key, eq, value = o.partition("=")
+        if eq and (key in USER_KEYED or key.startswith(tuple(f"{k}." for k in USER_KEYED))):
+            out.append(f"++{o}")
+            continue
         group = key.replace(".", "/")
         nested_group = eq and "." in key and not key.startswith(("+", "~", "hydra"))
         options = group_options(group) if nested_group else []
@@ -278,11 +287,12 @@ def _cross_checks(cfg: DictConfig) -> None:
     evaluation = cfg.get("eval")
     if evaluation is not None:
         span = min(hi - lo for lo, hi in zip(robot.joint_lower, robot.joint_upper, strict=True))
-        if evaluation.initial_offset > span:
-            raise fail(
-                "eval.initial_offset", evaluation.initial_offset,
-                f"it must not exceed the smallest joint range ({span:.4g} rad)",
-            )  # fmt: skip
+        for key in ("initial_offset", "large_offset"):
+            if evaluation[key] is not None and evaluation[key] > span:
+                raise fail(
+                    f"eval.{key}", evaluation[key],
+                    f"it must not exceed the smallest joint range ({span:.4g} rad)",
+                )  # fmt: skip
     ctrl = cfg.get("controller")
     if ctrl is None or OmegaConf.is_missing(cfg, "controller"):
         return

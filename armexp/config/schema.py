@@ -8,12 +8,15 @@ Joint numbers in configs are 1-based, as in the paper (q1, q2).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 from omegaconf import MISSING
 
+from armexp.baselines import ADAPTIVE_OFF, BASELINES, DEFAULT_BASELINES, OWN_LABELS, PLAY_LABELS
 from armexp.config.checks import (
+    Check,
     at_least,
     between,
     checked,
@@ -354,28 +357,59 @@ class TrainStageConfig:
     torch_threads: int | None = checked(1, or_null(at_least(1)))
 
 
+def _labels_check(labels: list[str], what: str) -> Check:
+    """One of ``labels`` (``what`` says what they are)."""
+    return Check(lambda v: v in labels, f"choose {what}")
+
+
+_BASELINE_NAMES = ", ".join(BASELINES)
+_baselines_check = Check(
+    lambda v: all(b in BASELINES for b in v) and len(set(v)) == len(v),
+    f"each entry must be one of the baselines {_BASELINE_NAMES}, listed once",
+)
+_tune_runs_check = Check(
+    lambda v: all(
+        (k in BASELINES or re.fullmatch(r"adaptive_[a-z]+", k)) and k != ADAPTIVE_OFF
+        and isinstance(r, str) and r for k, r in v.items()
+    ),
+    f"map a baseline ({_BASELINE_NAMES}) or adaptive_<criterion> to a tune run id",
+)  # fmt: skip
+
+
 @dataclass
 class EvalStageConfig:
+    """`armexp eval` (docs/design.md §8): the labels it runs are those of `armexp.baselines`."""
+
     run_name: str | None = None
     #: The train run whose policy is evaluated (None: the latest FINISHED one that matches).
     train_run: str | None = None
-    #: PID baseline gains: ``tuned`` (``pid_tune_run`` or the latest PID tune run) or ``config``
-    #: (``conf/per_robot/pid_<robot>.yaml`` for the policy's robot).
-    pid_gains: str = checked("tuned", one_of("tuned", "config"))
-    pid_tune_run: str | None = None
+    #: Baselines run beside the policy's own controller, by name (`armexp.baselines.BASELINES`).
+    baselines: list[str] = checked(factory=lambda: list(DEFAULT_BASELINES), check=_baselines_check)
+    #: Also run the policy's adaptive law with adaptation off (b1 = 0, ρ̂ ≡ 0): ``adaptive_off``.
+    ablation: bool = True
+    #: Baseline gains: ``tuned`` (``tune_runs.<baseline>`` or the latest FINISHED tune run of its
+    #: controller, the policy's robot and its criterion) or ``config`` (each controller's
+    #: configured gains for the policy's robot).
+    baseline_gains: str = checked("tuned", one_of("tuned", "config"))
+    #: Tune run ids by label: a baseline's, or ``adaptive_<criterion>``'s (the adaptive law tuned
+    #: under a baseline's criterion, where that differs from the policy's). The pipeline fills it.
+    tune_runs: dict[str, str] = checked(factory=dict, check=_tune_runs_check)
     #: Adaptive gains: ``tuned`` (those the policy was trained with, its train run's
     #: ``gains.yaml``) or ``config`` (``controller.gains`` as composed, e.g. the paper's).
     adaptive_gains: str = checked("tuned", one_of("tuned", "config"))
-    controllers: list[str] = field(default_factory=lambda: ["subsystem_adaptive", "pid"])
     #: Evaluate the paper tasks (a)-(d); plus tasks.n_random held-out random targets.
     paper_tasks: bool = True
     random_trajectories: bool = False
     deterministic: bool = True
-    #: Convergence (Table III's last column): each paper task is run again with the reference
-    #: started this far (rad, every joint) from the arm, and the 2 % settling time of ‖e1‖
-    #: within the first ``convergence_window`` s of that run is reported.
-    initial_offset: float = checked(0.05, _pos)
+    #: Convergence (Definition 1, `armexp.sim.convergence`): each paper task is run again for
+    #: ``convergence_window`` s with the reference started this far (rad, every joint) from the
+    #: arm: small enough not to saturate the torques.
+    initial_offset: float = checked(0.005, _pos)
+    #: ... and once more this far (rad; null: no second run), the metrics suffixed ``_large``.
+    large_offset: float | None = checked(0.05, or_null(_pos))
     convergence_window: float = checked(1.0, _pos)
+    #: The settling band is max(2 % of the offset, this) (rad).
+    convergence_tolerance: float = checked(1e-4, nonnegative())
     #: Each paper task's episode per controller as an animated GIF and MP4 (a few seconds each).
     animations: bool = True
 
@@ -390,11 +424,23 @@ class PlayStageConfig:
     run_name: str | None = None
     #: The train run whose policy plays (None: the latest FINISHED one that matches, as eval).
     train_run: str | None = None
-    controller: str = checked("subsystem_adaptive", one_of("subsystem_adaptive", "pid"))
-    #: Gains as `armexp eval` takes them (``eval.adaptive_gains``, ``eval.pid_gains``).
+    #: A label as eval names it: the policy's own controller (``adaptive``, ``pid`` or
+    #: ``computed_torque``), ``adaptive_off`` or a baseline's name; null: the policy's own.
+    controller: str | None = checked(
+        None,
+        or_null(
+            _labels_check(
+                PLAY_LABELS,
+                "the policy's own controller (" + ", ".join(OWN_LABELS) + f"), {ADAPTIVE_OFF} or "
+                f"a baseline ({_BASELINE_NAMES})",
+            )
+        ),
+    )
+    #: Gains as `armexp eval` takes them (``eval.adaptive_gains``, ``eval.baseline_gains``,
+    #: ``eval.tune_runs``).
     adaptive_gains: str = checked("tuned", one_of("tuned", "config"))
-    pid_gains: str = checked("tuned", one_of("tuned", "config"))
-    pid_tune_run: str | None = None
+    baseline_gains: str = checked("tuned", one_of("tuned", "config"))
+    tune_runs: dict[str, str] = checked(factory=dict, check=_tune_runs_check)
     #: Names of ``tasks.targets``, then extra targets ``[[x, y], …]`` (m; typed loosely because
     #: OmegaConf does not turn an int into a float inside a nested list, `validate` checks them).
     tasks: list[str] = field(default_factory=lambda: ["a", "b", "c", "d"])
@@ -438,7 +484,7 @@ class PipelineStageConfig:
     #: report over them all (empty: a single pipeline with ``seed``).
     seeds: list[int] = field(default_factory=list)
     #: In a study, each seed's policy is also evaluated with the paper's adaptive gains
-    #: (``eval.adaptive_gains=config``, adaptive controller only).
+    #: (``eval.adaptive_gains=config eval.baselines=[] eval.ablation=false``).
     paper_gains_row: bool = False
 
 

@@ -13,14 +13,13 @@ import numpy as np
 import pandas as pd
 
 from armexp import tracking
+from armexp.baselines import title
 from armexp.envs.reach import ReachEnv
 from armexp.render.animation import Scene, write
 
 ANIMATIONS_DIR = "animations"
 #: A target as an episode stores it (an array) or as written in a config.
 Point = Sequence[float] | np.ndarray
-#: How a controller is named in an animation's title.
-TITLES = {"adaptive": "proposed (adaptive)", "pid": "PID"}
 
 
 def describe(task: str | None, target: Point) -> str:
@@ -30,15 +29,15 @@ def describe(task: str | None, target: Point) -> str:
 
 def scene(env: ReachEnv, label: str, what: str, target: Point, reason: str) -> Scene:
     """The still parts of an episode of ``env`` towards ``target``: the arm's links, the
-    obstacles, the target and threshold, and a title naming the controller, the episode
-    (``what``) and how it ended."""
+    obstacles, the target and threshold, and a title naming the controller's label
+    (`armexp.baselines.title`), the episode (``what``) and how it ended."""
     x, y = float(target[0]), float(target[1])
     return Scene(
         lengths=tuple(float(v) for v in env.settings.plant.arm.lengths_array),
         circles=tuple((float(c[0]), float(c[1]), float(c[2])) for c in env.settings.obstacles),
         target=(x, y),
         threshold=float(env.settings.reach_threshold),
-        title=f"{TITLES.get(label, label)} · {what} · {reason.replace('_', ' ')}",
+        title=f"{title(label)} · {what} · {reason.replace('_', ' ')}",
     )
 
 

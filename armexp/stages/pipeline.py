@@ -1,10 +1,16 @@
-"""`armexp pipeline`: tune (adaptive and PID) → train → eval → report under one parent run.
+"""`armexp pipeline`: tune (the policy's controller and every baseline) → train → eval → report
+under one parent run.
 
 Each stage runs as a nested child run of the pipeline's run, wired to its upstream runs by id
-(``train.tune_run``, ``eval.train_run``, ``eval.pid_tune_run``, ``report.pipeline_run``), so the
-lineage tags point inside this pipeline. With ``pipeline.reuse=true`` a stage whose inputs (the
-config sections of `armexp.tracking.STAGE_INPUTS`, upstream run ids included) match a FINISHED
-run's is not run again: that run's id is used and tagged on the parent
+(``train.tune_run``, ``eval.train_run``, ``eval.tune_runs``, ``report.pipeline_run``), so the
+lineage tags point inside this pipeline. The tune steps (`tune_steps`): ``tune``, the configured
+controller under the comparison's criterion (``tuner.objective.criterion``); ``tune_<baseline>``
+for every baseline of ``eval.baselines`` under its own criterion (``tune_pid_gaing``,
+``tune_pid_itae``, ``tune_computed_torque``); and ``tune_adaptive_<criterion>``, the adaptive law
+under each other criterion a baseline needs (the proposed side of that comparison). With
+``eval.baseline_gains=config`` only ``tune`` runs. With ``pipeline.reuse=true`` a stage whose
+inputs (the config sections of `armexp.tracking.STAGE_INPUTS`, upstream run ids included) match a
+FINISHED run's is not run again: that run's id is used and tagged on the parent
 (``armexp.reused.<step>``). A failing stage marks the parent FAILED and names itself in
 ``armexp.failed_stage``.
 """
@@ -20,37 +26,99 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from armexp import tracking
+from armexp.baselines import (
+    ADAPTIVE,
+    BASELINES,
+    CONFIG,
+    baseline_criterion,
+    reference_criteria,
+    reference_label,
+)
 from armexp.config import ConfigError, validate
+from armexp.gains import criterion_of, with_criterion
 
 log = logging.getLogger(__name__)
 
 FAILED_STAGE_TAG = "armexp.failed_stage"
-STEPS = ("tune", "tune_pid", "train", "eval", "eval_paper", "report")
 
 
-def _pid_config(cfg: DictConfig) -> DictConfig:
-    """The same run with ``controller=pid``: composed by Hydra from this job's overrides, with
-    this config's seed (a study sets it per seed)."""
+def controller_config(cfg: DictConfig, controller: str) -> DictConfig:
+    """The same run with ``controller=<controller>`` (its per-robot parts from
+    ``conf/per_robot/<controller>_<robot>.yaml``): composed by Hydra from this job's overrides,
+    with this config's other sections (a study sets the seed per seed)."""
     from hydra import compose
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.hydra_config import HydraConfig
 
+    if str(cfg.controller.name) == controller:
+        return copy.deepcopy(cfg)
     overrides: list[str] = []
     if HydraConfig.initialized():
         overrides = [o for o in HydraConfig.get().overrides.task if not o.startswith("controller")]
     if not GlobalHydra.instance().is_initialized():
         from armexp.config import compose_config
 
-        return compose_config([*overrides, "controller=pid"])
-    pid = compose(config_name="config", overrides=[*overrides, "controller=pid"])
+        other = compose_config([*overrides, f"controller={controller}"])
+    else:
+        other = compose(config_name="config", overrides=[*overrides, f"controller={controller}"])
     # Hydra records the job's overrides resolved (``tuner.seed=${seed}`` as ``tuner.seed=0``):
     # every section but the controller is taken from the job's own config instead.
-    with open_dict(pid):
+    with open_dict(other):
         for key in cfg:
             if key != "controller":
-                pid[key] = copy.deepcopy(cfg[key])
-    validate(pid)
-    return pid
+                other[key] = copy.deepcopy(cfg[key])
+    validate(other)
+    return other
+
+
+def tune_steps(cfg: DictConfig) -> dict[str, tuple[str, str]]:
+    """The pipeline's tune steps: step name → (controller, criterion), ``tune`` first. A
+    baseline with the configured controller and the comparison's criterion is ``tune`` itself."""
+    comparison = criterion_of(cfg)
+    own = str(cfg.controller.name)
+    steps = {"tune": (own, comparison)}
+    if str(cfg.eval.baseline_gains) != "tuned":
+        return steps
+    names = [str(b) for b in cfg.eval.baselines]
+    for name in names:
+        wanted = (BASELINES[name].controller, baseline_criterion(name, comparison))
+        if wanted != steps["tune"]:
+            steps[f"tune_{name}"] = wanted
+    if own == ADAPTIVE:
+        own_criterion = comparison if cfg.train.gains == "tuned" else CONFIG
+        for criterion in reference_criteria(names, own_criterion, comparison):
+            if criterion != comparison:
+                steps[f"tune_{reference_label(criterion)}"] = (ADAPTIVE, criterion)
+    return steps
+
+
+def eval_tune_runs(cfg: DictConfig, ids: dict[str, str]) -> dict[str, str]:
+    """``eval.tune_runs`` from the tune steps' run ids (`tune_steps`): each baseline's, and each
+    ``adaptive_<criterion>`` reference's."""
+    steps = tune_steps(cfg)
+    by_kind = {kind: ids[step] for step, kind in steps.items() if step in ids}
+    out: dict[str, str] = {}
+    comparison = criterion_of(cfg)
+    for name in cfg.eval.baselines:
+        kind = (BASELINES[str(name)].controller, baseline_criterion(str(name), comparison))
+        if kind in by_kind:
+            out[str(name)] = by_kind[kind]
+    for (controller, criterion), run_id in by_kind.items():
+        if controller == ADAPTIVE:
+            out[reference_label(criterion)] = run_id
+    return out
+
+
+def paper_gains_config(cfg: DictConfig) -> DictConfig:
+    """The paper-gains row of a study: the policy with the configured (the paper's) adaptive
+    gains, alone."""
+    out = copy.deepcopy(cfg)
+    with open_dict(out):
+        out.eval.adaptive_gains = "config"
+        out.eval.baselines = []
+        out.eval.ablation = False
+        out.eval.tune_runs = {}
+    return out
 
 
 def _with_seed(cfg: DictConfig, seed: int) -> DictConfig:
@@ -114,11 +182,16 @@ def run_one(
     paper_gains_row: bool = False,
     report_: bool = True,
 ) -> tracking.StageResult:
-    """tune → tune_pid → train → eval (→ eval_paper: the adaptive controller with the paper's
-    gains) (→ report) under one parent run; its id, and the ids of the stage runs by step."""
+    """The tune steps (`tune_steps`) → train → eval (→ eval_paper: the adaptive controller with
+    the paper's gains) (→ report) under one parent run; its id, and the ids of the stage runs by
+    step."""
     from armexp.stages import evaluate, report, train, tune
 
-    pid_cfg = _with_seed(_pid_config(cfg), int(cfg.seed))
+    seed = int(cfg.seed)
+    tune_cfgs = {
+        step: with_criterion(_with_seed(controller_config(cfg, controller), seed), criterion)
+        for step, (controller, criterion) in tune_steps(cfg).items()
+    }
     ids: dict[str, str] = {}
     name = run_name if run_name is not None else cfg.pipeline.run_name
     with tracking.stage_run(cfg, "pipeline", run_name=name) as parent:
@@ -152,8 +225,8 @@ def run_one(
             mlflow.set_tag(f"armexp.run.{name}", ids[name])
             return ids[name]
 
-        step("tune", "tune", cfg, tune.run)
-        step("tune_pid", "tune", pid_cfg, tune.run)
+        for tune_step, tune_cfg in tune_cfgs.items():
+            step(tune_step, "tune", tune_cfg, tune.run)
         with open_dict(cfg):
             if cfg.train.gains == "tuned":
                 cfg.train.tune_run = ids["tune"]
@@ -167,14 +240,11 @@ def run_one(
             else:
                 step("train", "train", cfg, train.run)
             cfg.eval.train_run = ids["train"]
-            if cfg.eval.pid_gains == "tuned":
-                cfg.eval.pid_tune_run = ids["tune_pid"]
+            if cfg.eval.baseline_gains == "tuned":
+                cfg.eval.tune_runs = eval_tune_runs(cfg, ids)
             step("eval", "eval", cfg, evaluate.run)
             if paper_gains_row:
-                paper_cfg = copy.deepcopy(cfg)
-                paper_cfg.eval.adaptive_gains = "config"
-                paper_cfg.eval.controllers = [str(cfg.controller.name)]
-                step("eval_paper", "eval", paper_cfg, evaluate.run)
+                step("eval_paper", "eval", paper_gains_config(cfg), evaluate.run)
             if report_:
                 cfg.report.pipeline_run = parent_id
                 cfg.report.eval_runs = [ids["eval"]]

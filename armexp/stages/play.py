@@ -1,16 +1,19 @@
 """`armexp play`: a trained policy on chosen tasks and targets, animated.
 
-The policy, its environment and its gains are loaded as `armexp eval` loads them
-(`armexp.stages.evaluate.load_policy`): the policy of ``play.train_run`` or of the latest FINISHED
-train run for the configured robot and obstacles, tracked by ``play.controller`` with the gains of
-``play.adaptive_gains`` or ``play.pid_gains`` / ``play.pid_tune_run``. One episode per task of
-``play.tasks`` (names of ``tasks.targets``) and per extra target of ``play.targets`` (named
-``target_<i>``), each with the reset seed eval gives it (``seed`` + the task's place in
-``tasks.targets``; extra targets after the tasks), so a task plays the episode eval measured.
+The policy, its environment and its controllers are loaded as `armexp eval` loads them
+(`armexp.stages.controller_set`): the policy of ``play.train_run`` or of the latest FINISHED train
+run for the configured robot and obstacles, tracked by the label ``play.controller`` (null: the
+policy's own controller, e.g. ``adaptive``; ``adaptive_off``; or a baseline such as ``pid_itae``)
+with the gains of ``play.adaptive_gains``, or for a baseline ``play.baseline_gains`` /
+``play.tune_runs.<label>`` (`armexp.gains.resolve`). One episode per task of ``play.tasks`` (names
+of ``tasks.targets``) and per extra target of ``play.targets`` (named ``target_<i>``), each with the
+reset seed eval gives it (``seed`` + the task's place in ``tasks.targets``; extra targets after the
+tasks), so a task plays the episode eval measured.
 
-Logged to a play run tagged with the train run: ``animations/<controller>/<name>.gif|mp4``
-(``play.formats``), the 1 kHz trajectory ``trajectories/<controller>/<name>.parquet``, the
-episodes' metrics as rows of ``episodes.csv`` and as ``<controller>.<name>.<metric>``.
+Logged to a play run tagged with the train run (and ``armexp.tune_run.<label>`` when the gains
+came from a tune run): ``animations/<label>/<name>.gif|mp4`` (``play.formats``), the 1 kHz
+trajectory ``trajectories/<label>/<name>.parquet``, the episodes' metrics as rows of
+``episodes.csv`` and as ``<label>.<name>.<metric>``.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import mlflow
 import numpy as np
 import pandas as pd
 import yaml
-from omegaconf import DictConfig
+from omegaconf import DictConfig, open_dict
 
 from armexp import tracking
 from armexp.agents.rollout import episode_metrics, rollout
@@ -33,7 +36,7 @@ from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
 from armexp.sim.trajectory import trajectory_columns
 from armexp.stages import animate
-from armexp.stages.evaluate import LABELS, load_policy
+from armexp.stages.controller_set import lineage_tags, load_policy, play_entry
 
 
 def _episodes(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any], int]]:
@@ -72,23 +75,23 @@ def _local(uri: str) -> str:
 
 
 def run(cfg: DictConfig) -> tracking.StageResult:
-    controller = str(cfg.play.controller)
-    loaded = load_policy(cfg, "play", [controller], "play.controller")
-    label = LABELS[controller]
-    gains = loaded.gains[controller]
-    env = ReachEnv(settings_from_config(loaded.train_cfg, controller, gains), record=True)
+    policy = load_policy(cfg, "play")
+    entry = play_entry(cfg, policy)
+    label, gains = entry.label, entry.gains.values
+    with open_dict(cfg):  # the run's params and name record the label that played
+        cfg.play.controller = label
+    env = ReachEnv(settings_from_config(policy.train_cfg, entry.controller, gains), record=True)
     episodes = _episodes(cfg, env)
     n, threshold = env.n, env.settings.reach_threshold
     lengths = env.settings.plant.arm.lengths_array
     formats = [str(f) for f in cfg.play.formats]
-    with tracking.stage_run(
-        cfg, "play", run_name=cfg.play.run_name, extra_tags=loaded.tags
-    ) as active:
+    tags = {**policy.tags, **lineage_tags([entry])}
+    with tracking.stage_run(cfg, "play", run_name=cfg.play.run_name, extra_tags=tags) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), f"gains/{label}.yaml")
         records, seconds = [], []
         for name, options, seed in episodes:
             episode = rollout(
-                env, loaded.model, options, seed=seed, deterministic=bool(cfg.play.deterministic)
+                env, policy.model, options, seed=seed, deterministic=bool(cfg.play.deterministic)
             )
             metrics = episode_metrics(episode, n, lengths, threshold)
             finite = {k: v for k, v in metrics.items() if math.isfinite(v)}

@@ -1,10 +1,11 @@
 """A study: ``armexp pipeline pipeline.seeds=[0,1,2,3,4]`` (``experiment=reproduce``).
 
-One parent pipeline run (tag ``armexp.study``) holds one child pipeline per seed: both
-controllers tuned with that seed (the reproduce preset sets ``tuner.seed: ${seed}``), the agent
-trained, and its policy evaluated with both controllers (and, with ``pipeline.paper_gains_row``,
-with the paper's adaptive gains). Then one report over every seed's eval runs, with the
-statistics over seeds (`armexp.report.stats`, `armexp.report.claims`).
+One parent pipeline run (tag ``armexp.study``) holds one child pipeline per seed: the policy's
+controller and every baseline tuned with that seed (the reproduce preset sets
+``tuner.seed: ${seed}``; `armexp.stages.pipeline.tune_steps`), the agent trained, and its policy
+evaluated with its controller, the ablation and the baselines (and, with
+``pipeline.paper_gains_row``, alone with the paper's adaptive gains). Then one report over every
+seed's eval runs, with the statistics over seeds (`armexp.report.stats`, `armexp.report.claims`).
 
 A seed whose pipeline fails is recorded (``armexp.failed_seeds``) and the study goes on; the report
 names it as missing. Re-running the same command finishes an interrupted study: the study always

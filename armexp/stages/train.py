@@ -1,8 +1,9 @@
 """`armexp train`: SAC (Algorithm 1) plans joint velocities with the tuned controller in the loop.
 
 Gains come from a tune run (``train.tune_run`` or the latest FINISHED tune run for the same
-controller and robot; its id is tagged ``armexp.tune_run``) or, with ``train.gains=config``, from
-``controller.gains`` (``controller.gains=paper`` selects that automatically).
+controller and robot under ``tuner.objective.criterion``; its id is tagged ``armexp.tune_run``)
+or, with ``train.gains=config``, from ``controller.gains`` (``controller.gains=paper`` selects
+that automatically); `armexp.gains.resolve` finds them.
 
 Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
 per episode, reward, length, success and collision with their rates over the last 100 episodes.
@@ -48,6 +49,7 @@ from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
+from armexp.gains import resolve
 
 log = logging.getLogger(__name__)
 
@@ -60,13 +62,15 @@ AGENT_PRESET_TAG = "armexp.agent_preset"
 
 def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
     """The gains the agent trains with, in config form, and the lineage tags that say where
-    they came from."""
-    if cfg.train.gains == "config":
-        gains = OmegaConf.to_container(cfg.controller.gains, resolve=True)
-        assert isinstance(gains, dict)
-        return {str(k): v for k, v in gains.items()}, {GAINS_SOURCE_TAG: "config"}
-    run, gains = tracking.tuned_gains(cfg, cfg.train.tune_run, key="train.tune_run")
-    return gains, {GAINS_SOURCE_TAG: "tune", TUNE_RUN_TAG: run.info.run_id}
+    they came from (`armexp.gains.resolve`: ``controller.gains``, or ``train.tune_run`` or the
+    latest tune run of this controller and robot under ``tuner.objective.criterion``)."""
+    found = resolve(
+        cfg, str(cfg.controller.name), str(cfg.robot.name), str(cfg.train.gains),
+        run_id=cfg.train.tune_run, key="train.tune_run",
+    )  # fmt: skip
+    if found.tune_run is None:
+        return found.values, {GAINS_SOURCE_TAG: "config"}
+    return found.values, {GAINS_SOURCE_TAG: "tune", TUNE_RUN_TAG: found.tune_run}
 
 
 def _agent_preset(cfg: DictConfig) -> str:

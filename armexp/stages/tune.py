@@ -2,7 +2,8 @@
 
 The search runs over `armexp.tune.space.SearchSpace` (log10 of the coordinates in
 ``controller.bounds`` with ``tuner.log_space``; the adaptive law over a0, a1, λ, γ) and scores each
-point by `armexp.tune.objective.TuningObjective` under ``tuner.objective.criterion``.
+point by `armexp.tune.objective.TuningObjective` under ``tuner.objective.criterion``. The
+configured gains (``controller.gains``) take the place of the first of the initial nests.
 
 Logs to one MLflow run: the tags ``armexp.criterion`` and ``armexp.horizon`` (the criterion and
 the scenarios' length in s), the best objective per iteration (metric history
@@ -30,6 +31,7 @@ from omegaconf import DictConfig
 from armexp import console, tracking
 from armexp.builders import build_plant, controller_gains, controller_kind
 from armexp.config import ConfigError
+from armexp.gains import CRITERION_TAG, HORIZON_TAG
 from armexp.sim.controllers import (
     ADAPTIVE,
     PAPER_GAINS,
@@ -49,8 +51,6 @@ from armexp.tune.space import SearchSpace, coordinate_names
 from armexp.tune.stability import pose_grid
 
 FLUSH_EVERY = 25
-CRITERION_TAG = "armexp.criterion"
-HORIZON_TAG = "armexp.horizon"
 
 
 def search_space(cfg: DictConfig) -> SearchSpace:
@@ -182,6 +182,9 @@ def _search(
             abandon=str(tuner.abandon),
             seed=int(tuner.seed),
             callback=on_iteration,
+            # The configured gains (the paper's, or a baseline's defaults) are one of the
+            # first nests, so even a small budget starts from a feasible point.
+            start=space.point(controller_gains(cfg)),
         )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None

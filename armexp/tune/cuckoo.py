@@ -167,6 +167,7 @@ def cuckoo_search(
     step_scale: float = 0.01,
     abandon: str = "per_component",
     callback: Callback | None = None,
+    start: ArrayLike | None = None,
 ) -> CuckooResult:
     """Minimise ``objective`` over the box ``[lower, upper]`` by cuckoo search (Algorithm 2).
 
@@ -193,6 +194,9 @@ def cuckoo_search(
             module docstring).
         callback: Called as ``callback(iteration, result_so_far)`` after each iteration
             ``1..n_iterations``; the partial result's arrays are read-only views.
+        start: A known point (clipped to the box) that takes the place of the first nest of
+            the initial population, e.g. a controller's configured gains; the random draws are
+            the same with or without it.
 
     Returns:
         A :class:`CuckooResult` with the best point, its value, the convergence history and
@@ -308,6 +312,11 @@ def cuckoo_search(
         )
 
     nests = lo + rng.random((n, d)) * span
+    if start is not None:
+        first = _as_bounds("start", start)
+        if first.shape != lo.shape:
+            _fail(f"start has {first.size} entries; it must have one per dimension ({d}).")
+        nests[0] = np.clip(first, lo, hi)
     keys = evaluate(nests, 0)
 
     for it in range(1, n_iter + 1):

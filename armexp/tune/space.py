@@ -94,6 +94,11 @@ class SearchSpace:
             return np.array([g[0], g[1], lam, gamma])
         return g
 
+    def point(self, gains: Array) -> Array:
+        """A gain vector (p,) → its search point (d,) (log10 of its coordinates with ``log``),
+        each coordinate clipped to the box first (a gain of 0 has no logarithm)."""
+        return self._scale(np.clip(self.coordinates(gains), self.lower, self.upper))
+
     def on_bound(self, gains: Array) -> list[str]:
         """The coordinates of ``gains`` within `ON_BOUND` of the box's width (in the search's
         scale) from a bound, as ``name=lower|upper``."""

@@ -1,0 +1,236 @@
+"""The controllers `armexp eval` and `armexp play` run a policy with: their labels, roles, gains and
+where the gains came from (docs/design.md §4, §8; the labels are `armexp.baselines`').
+
+* the policy's own controller (role ``proposed``, label ``adaptive`` for subsystem_adaptive): the
+  gains it was trained with (``<section>.adaptive_gains=tuned``, criterion that of the train run's
+  tune run, ``config`` when it trained with configured gains) or ``controller.gains`` as composed
+  (``<section>.adaptive_gains=config``);
+* ``adaptive_off`` (role ``ablation``): the same law and gains with adaptation off (b1 = 0);
+* each baseline of ``eval.baselines`` (role ``baseline``): tuned under its criterion
+  (``<section>.tune_runs.<name>`` or the latest matching tune run, `armexp.gains.resolve`) or
+  configured (``<section>.baseline_gains=config``); ``compare_with`` names the proposed label it
+  is compared with;
+* ``adaptive_<criterion>`` (role ``reference``): the adaptive law tuned under a baseline's
+  criterion where that differs from the policy's gains' criterion, the proposed side of that
+  baseline's comparison.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import yaml
+from omegaconf import DictConfig, OmegaConf
+
+from armexp import run_names, tracking
+from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
+from armexp.agents.sac import load_sac
+from armexp.baselines import (
+    ABLATION,
+    ADAPTIVE,
+    ADAPTIVE_OFF,
+    BASELINE,
+    BASELINES,
+    CONFIG,
+    PROPOSED,
+    REFERENCE,
+    baseline_criterion,
+    own_label,
+    reference_criteria,
+    reference_label,
+)
+from armexp.config import ConfigError
+from armexp.gains import Gains, criterion_of, resolve, run_criterion, run_horizon, tuned
+from armexp.gains import without_adaptation as adaptation_off
+from armexp.stages.train import TUNE_RUN_TAG
+
+log = logging.getLogger(__name__)
+
+TRAIN_RUN_TAG = "armexp.train_run"
+#: Where the policy's own controller's gains came from: ``tuned`` (the policy's) or ``config``.
+GAINS_TAG = "armexp.adaptive_gains"
+#: The eval run's artifact that describes every label (`Entry.record`).
+CONTROLLERS_FILE = "controllers.yaml"
+
+
+def tune_run_tag(label: str) -> str:
+    """The tag with the tune run a label's gains came from: ``armexp.tune_run.<label>``."""
+    return f"{TUNE_RUN_TAG}.{label}"
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One controller an eval runs: its label, role, gains and (a baseline) the proposed label it
+    is compared with."""
+
+    label: str
+    role: str
+    gains: Gains
+    compare_with: str | None = None
+
+    @property
+    def controller(self) -> str:
+        return self.gains.controller
+
+    def record(self) -> dict[str, Any]:
+        """Its entry in ``controllers.yaml``."""
+        g = self.gains
+        return {"controller": g.controller, "role": self.role, "criterion": g.criterion,
+                "horizon": g.horizon, "tune_run": g.tune_run, "gains": g.values,
+                "compare_with": self.compare_with}  # fmt: skip
+
+
+@dataclass
+class Policy:
+    """A train run's policy, the config it was trained with (its environment; the episode
+    targets are the caller's ``tasks``), its own controller, and the lineage tags of the run
+    that uses it."""
+
+    train_id: str
+    train_cfg: DictConfig
+    model: Any
+    own: Entry
+    tags: dict[str, str]
+
+    @property
+    def robot(self) -> str:
+        return str(self.train_cfg.robot.name)
+
+
+def _train_run(cfg: DictConfig, section: str) -> Any:
+    return tracking.find_stage_run(
+        cfg,
+        "train",
+        run_id=cfg[section].train_run,
+        # The circles too: a run with overridden circles keeps its obstacle set's name.
+        match={
+            "robot.name": str(cfg.robot.name),
+            "obstacles.name": str(cfg.obstacles.name),
+            "obstacles.circles": tracking.flatten(cfg)["obstacles.circles"],
+        },
+        key=f"{section}.train_run",
+    )
+
+
+def load_policy(cfg: DictConfig, section: str) -> Policy:
+    """The policy of ``<section>.train_run`` (or the latest matching train run) with its own
+    controller's gains per ``<section>.adaptive_gains``."""
+    train_run = _train_run(cfg, section)
+    train_id = train_run.info.run_id
+    train_cfg = OmegaConf.load(tracking.download_artifact(train_id, "config.yaml", cfg))
+    assert isinstance(train_cfg, DictConfig)
+    # The episode targets are this run's choice; the environment is the policy's.
+    train_cfg.tasks = cfg.tasks
+    trained_with = str(train_cfg.controller.name)
+    source = str(cfg[section].adaptive_gains)
+    tags = {TRAIN_RUN_TAG: train_id, GAINS_TAG: source}
+    if source == CONFIG:
+        if str(cfg.controller.name) != trained_with:
+            raise ConfigError(
+                f"{section}.adaptive_gains=config is not allowed with "
+                f"controller={cfg.controller.name}: the policy was trained with {trained_with}; "
+                f"compose controller={trained_with}."
+            )
+        values = OmegaConf.to_container(cfg.controller.gains, resolve=True)
+        assert isinstance(values, dict)
+        own = Gains(trained_with, {str(k): v for k, v in values.items()}, CONFIG, None, None)
+    else:
+        values = yaml.safe_load(tracking.download_artifact(train_id, "gains.yaml", cfg).read_text())
+        own = _trained_gains(cfg, train_run, trained_with, values)
+        if own.tune_run:
+            tags[TUNE_RUN_TAG] = own.tune_run
+    if train_run.data.tags.get(run_names.AGENT_PRESET_TAG):  # the run is named after the policy
+        tags[run_names.AGENT_PRESET_TAG] = train_run.data.tags[run_names.AGENT_PRESET_TAG]
+    model_path = tracking.download_artifact(train_id, f"{MODEL_DIR}/{MODEL_FILE}", cfg)
+    model = load_sac(str(model_path), None, train_cfg.agent)
+    entry = Entry(own_label(trained_with), PROPOSED, own)
+    return Policy(train_id, train_cfg, model, entry, tags)
+
+
+def _trained_gains(cfg: DictConfig, train_run: Any, controller: str, values: Any) -> Gains:
+    """The gains a train run trained with, and the criterion of the tune run they came from."""
+    tune_id = train_run.data.tags.get(TUNE_RUN_TAG)
+    if not tune_id:
+        return Gains(controller, values, CONFIG, None, None)
+    tune = tracking.find_stage_run(
+        cfg, "tune", run_id=tune_id, key=f"the tune run of train run {train_run.info.run_id}"
+    )
+    return Gains(controller, values, run_criterion(tune), run_horizon(tune), tune_id)
+
+
+def baseline_entry(
+    cfg: DictConfig, section: str, policy: Policy, name: str, compare_with: str | None
+) -> Entry:
+    """Baseline ``name`` for ``policy``'s robot, its gains per ``<section>.baseline_gains``."""
+    stage = cfg[section]
+    found = resolve(
+        cfg, BASELINES[name].controller, policy.robot, str(stage.baseline_gains),
+        criterion=baseline_criterion(name, criterion_of(cfg)),
+        run_id=stage.tune_runs.get(name), key=f"{section}.tune_runs.{name}",
+    )  # fmt: skip
+    return Entry(name, BASELINE, found, compare_with)
+
+
+def ablation_entry(policy: Policy) -> Entry:
+    """``adaptive_off``: the policy's adaptive law and gains with adaptation off."""
+    own = policy.own.gains
+    return Entry(
+        ADAPTIVE_OFF, ABLATION, dataclasses.replace(own, values=adaptation_off(own.values))
+    )
+
+
+def controller_set(cfg: DictConfig, policy: Policy) -> list[Entry]:
+    """Every label `armexp eval` runs, in order: the policy's own controller, the ablation, the
+    baselines of ``eval.baselines``, then the ``adaptive_<criterion>`` references they need."""
+    stage = cfg.eval
+    own = policy.own
+    adaptive = own.controller == ADAPTIVE
+    names = [str(b) for b in stage.baselines]
+    if own.label in names:  # a policy trained with a baseline's controller runs it already
+        log.warning("eval: %s is the policy's own controller; not run again", own.label)
+        names.remove(own.label)
+    entries = [own]
+    if stage.ablation and adaptive:
+        entries.append(ablation_entry(policy))
+    comparison = criterion_of(cfg)
+    tuned_baselines = str(stage.baseline_gains) == "tuned"
+    for name in names:
+        criterion = baseline_criterion(name, comparison)
+        same = not (adaptive and tuned_baselines) or criterion == own.gains.criterion
+        compare = own.label if same else reference_label(criterion)
+        entries.append(baseline_entry(cfg, "eval", policy, name, compare))
+    if adaptive and tuned_baselines:
+        for criterion in reference_criteria(names, own.gains.criterion, comparison):
+            label = reference_label(criterion)
+            found = tuned(
+                cfg, ADAPTIVE, policy.robot, criterion, stage.tune_runs.get(label),
+                key=f"eval.tune_runs.{label}",
+            )  # fmt: skip
+            entries.append(Entry(label, REFERENCE, found))
+    return entries
+
+
+def play_entry(cfg: DictConfig, policy: Policy) -> Entry:
+    """The label ``play.controller`` names (null: the policy's own controller)."""
+    own = policy.own
+    label = str(cfg.play.controller) if cfg.play.controller else own.label
+    if label == own.label:
+        return own
+    if label == ADAPTIVE_OFF and own.controller == ADAPTIVE:
+        return ablation_entry(policy)
+    if label in BASELINES:
+        return baseline_entry(cfg, "play", policy, label, own.label)
+    raise ConfigError(
+        f"play.controller={label} is not allowed: the policy of train run {policy.train_id} was "
+        f"trained with {own.controller} (label {own.label}); choose {own.label}, "
+        + (f"{ADAPTIVE_OFF}, " if own.controller == ADAPTIVE else "")
+        + f"or a baseline ({', '.join(BASELINES)})."
+    )
+
+
+def lineage_tags(entries: list[Entry]) -> dict[str, str]:
+    """``armexp.tune_run.<label>`` for every label whose gains came from a tune run."""
+    return {tune_run_tag(e.label): e.gains.tune_run for e in entries if e.gains.tune_run}
