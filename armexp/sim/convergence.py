@@ -18,11 +18,13 @@ How the three constants are fitted, and why this way:
    once the transient is over, which is what eq. 10's ultimate bound is. It is the bound seen
    within the window; a decay slower than the window puts part of the transient into it.
 3. α by least squares of log(E − α*) against t over the decaying part: from the envelope's peak
-   until E − α* falls to `FIT_FLOOR` of its start, and no lower than `NOISE_FACTOR` × the spread
-   of ‖e1‖ over the tail (where E − α* is mostly the noise of the steady error, its logarithm
-   says nothing about the decay). A straight line in log space weighs every decade of the decay
-   alike, needs no starting guess and cannot fail to converge (unlike an iterative fit such as
-   scipy's curve_fit on the raw error, which the first, largest samples dominate).
+   until E − α* falls to `FIT_FLOOR` of its start, and no lower than `NOISE_FACTOR` × the
+   step-to-step jitter of ‖e1‖ over the tail (its largest change between samples: where E − α*
+   is mostly the noise of the steady error, its logarithm says nothing about the decay). The
+   jitter, unlike the tail's spread, is not raised by a decay still under way in the tail. A
+   straight line in log space weighs every decade of the decay alike, needs no starting guess
+   and cannot fail to converge (unlike an iterative fit such as scipy's curve_fit on the raw
+   error, which the first, largest samples dominate).
 4. ᾱ = the smallest factor for which eq. 9 holds over the decaying part with the fitted α and α*:
    max (E(t) − α*) e^{α (t − t0)} / ‖e(t0)‖. It is 1 when the error decays from its start exactly
    as the exponential, above 1 when it first grows (overshoot) or decays in a slower phase.
@@ -47,7 +49,7 @@ from armexp.sim.model import Array
 TAIL_SHARE = 0.25
 #: The decay is fitted until the envelope's excess over α* falls to this share of its start.
 FIT_FLOOR = 0.02
-#: ... and no lower than this many times the spread of ‖e1‖ over the tail (its noise).
+#: ... and no lower than this many times the jitter of ‖e1‖ over the tail (its noise).
 NOISE_FACTOR = 10.0
 #: Fewest samples in the decaying part for a rate.
 MIN_POINTS = 3
@@ -96,7 +98,8 @@ def definition_one(
     tail = rel >= (1.0 - TAIL_SHARE) * rel[-1]
     bound = float(e[tail].max())
     out["ultimate_bound"] = bound
-    out.update(_decay(rel, e, bound, float(e[tail].min())))
+    jitter = float(np.abs(np.diff(e[tail])).max()) if tail.sum() > 1 else 0.0
+    out.update(_decay(rel, e, bound, jitter))
     return out
 
 
@@ -105,7 +108,7 @@ def upper_envelope(norm_e1: Array) -> Array:
     return np.maximum.accumulate(np.asarray(norm_e1, dtype=np.float64)[::-1])[::-1]
 
 
-def _decay(rel: Array, e: Array, bound: float, tail_min: float) -> dict[str, float]:
+def _decay(rel: Array, e: Array, bound: float, jitter: float) -> dict[str, float]:
     """α and ᾱ of the decaying part (times ``rel`` from t0), given α* = ``bound``."""
     nan = {"decay_rate": math.nan, "decay_overshoot": math.nan}
     e0 = float(e[0])
@@ -114,7 +117,7 @@ def _decay(rel: Array, e: Array, bound: float, tail_min: float) -> dict[str, flo
     envelope = upper_envelope(e)
     excess = envelope - bound
     peak = int(np.argmax(e))
-    floor = max(FIT_FLOOR * float(excess[peak]), NOISE_FACTOR * (bound - tail_min))
+    floor = max(FIT_FLOOR * float(excess[peak]), NOISE_FACTOR * jitter)
     above = np.nonzero(excess[peak:] > floor)[0]
     if above.size == 0:
         return nan
