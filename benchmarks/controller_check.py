@@ -164,7 +164,8 @@ def main() -> int:
     print(f"torque limit: {limit.tolist()} N.m; tuner seed {args.seed}")
     proposed = tune("proposed", [*extra, seed])
     paper = gain_vector(ADAPTIVE, PAPER_GAINS, n)
-    mapping = {k: float(v) for k, v in zip(("a0", "a1", "b1", "c1", "r1"), proposed.gains)}
+    names = ("a0", "a1", "b1", "c1", "r1")
+    mapping = {k: float(v) for k, v in zip(names, proposed.gains, strict=True)}
     ablation = gain_vector(ADAPTIVE, without_adaptation(mapping), n)
     controllers = [
         proposed,
