@@ -165,8 +165,8 @@ def main() -> int:
     proposed = tune("proposed", [*extra, seed])
     paper = gain_vector(ADAPTIVE, PAPER_GAINS, n)
     names = ("a0", "a1", "b1", "c1", "r1")
-    mapping = {k: float(v) for k, v in zip(names, proposed.gains, strict=True)}
-    ablation = gain_vector(ADAPTIVE, without_adaptation(mapping), n)
+    adaptive = {k: float(v) for k, v in zip(names, proposed.gains, strict=True)}
+    ablation = gain_vector(ADAPTIVE, without_adaptation(adaptive), n)
     controllers = [
         proposed,
         Tuned("no adaptation", "subsystem_adaptive", ablation, "proposed gains, b1 = 0"),
