@@ -232,20 +232,35 @@ def test_computed_torque_is_tuned_under_the_comparisons_criterion() -> None:
 
 
 @pytest.mark.parametrize("robot", group_options("robot"))
-def test_a_pipeline_with_every_baseline_runs_on_every_shipped_robot(
-    tmp_path: Path, robot: str
+def test_computed_torque_through_every_stage_on_every_shipped_robot(
+    tmp_path: Path, robot: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    """controller=computed_torque as the policy's own controller: simulate, then a pipeline
+    (tune, train with it in the loop, eval against every baseline, report), then play, on the
+    arm's own gains and box."""
     runs = tmp_path / "runs"
-    command = [
-        "pipeline",
-        *SMALL,
-        f"robot={robot}",
-        "eval.baselines=[pid_gaing,pid_itae,computed_torque]",
-    ]
-    assert main([*command, f"tracking.runs_dir={runs}"]) == 0
+    where = [f"robot={robot}", "controller=computed_torque", f"tracking.runs_dir={runs}"]
+    assert main(["simulate", "scenario.duration=0.3", *where]) == 0
+    assert main(["pipeline", *SMALL, "eval.baselines=[pid_gaing,pid_itae,computed_torque]",
+                 *where]) == 0  # fmt: skip
     (parent,) = _runs(runs, "pipeline")
-    assert "armexp.run.tune_computed_torque" in parent.data.tags
-    (ev,) = _runs(runs, "eval")
-    ct = parent.data.tags["armexp.run.tune_computed_torque"]
-    assert ev.data.tags["armexp.tune_run.computed_torque"] == ct
-    assert {k.split(".")[0] for k in ev.data.metrics} >= {"adaptive", "computed_torque"}
+    (train,), (ev,) = _runs(runs, "train"), _runs(runs, "eval")
+    tune = parent.data.tags["armexp.run.tune"]
+    assert train.data.tags["armexp.tune_run"] == tune
+    assert train.data.params["controller.name"] == "computed_torque"
+    n = len(compose_config([f"robot={robot}"]).robot.lengths)
+    assert ev.data.params["robot.name"] == robot
+    labels = {k.split(".")[0] for k in ev.data.metrics}
+    # The policy's own controller is computed torque: it is not run again as a baseline.
+    assert labels == {"computed_torque", "pid_gaing", "pid_itae"}
+    for j in range(1, n + 1):
+        assert f"computed_torque.a.max_abs_tau_{j}" in ev.data.metrics
+    assert (runs / "report" / "index.html").exists()
+    capsys.readouterr()
+    assert main(["play", "play.tasks=[d]", "play.formats=[gif]", *where]) == 0
+    (play,) = _runs(runs, "play")
+    assert play.info.status == "FINISHED"
+    assert play.data.params["play.controller"] == "computed_torque"
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "| computed_torque, " in line and "animations (gif) of d in " in line, line
+    assert line.endswith(str(Path("animations") / "computed_torque")), line
