@@ -57,8 +57,8 @@ def test_the_comparison_orders_labels_by_role_and_counts_the_tasks_a_cell_covers
     assert pid.decay_rate == pytest.approx(8.0, rel=0.03) and pid.decay_rate_episodes == 3
     assert pid.max_torque == pytest.approx(np.mean([101.0, 102.0]))  # IQM of 100..103 per task
     shown = table.shown.set_index("Label").loc["pid_itae"]
-    assert shown["Decay rate λ (1/s)"].endswith("(3/4 tasks)")
-    assert shown["Ultimate bound ε (mrad)"] == "–"  # not logged
+    assert shown["Decay rate α (1/s)"].endswith("(3/4 tasks)")
+    assert shown["Ultimate bound α* (mrad)"] == "–"  # not logged
 
 
 @pytest.mark.parametrize(

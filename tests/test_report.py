@@ -351,7 +351,7 @@ def test_old_eval_runs_read_as_adaptive_against_pid_gaing(hand_reports: dict[str
     header = _row(md, "| Label |")
     pid = dict(zip(header, _row(md, "| pid_gaing |"), strict=True))
     assert pid["Tuned under"] == "gaing over 0.6 s" and pid["Compared with"] == "adaptive"
-    assert pid["Decay rate λ (1/s)"] == "–" and pid["Tip RMS (cm)"] == "1.000"
+    assert pid["Decay rate α (1/s)"] == "–" and pid["Tip RMS (cm)"] == "1.000"
     assert pid["Held-out success"] == "0.0 % of 1"
     claims = pd.read_csv(folder / "tables" / "claim_check.csv").set_index("claim")
     assert set(claims.baseline) == {"pid_gaing"} and set(claims.proposed) == {"adaptive"}
@@ -380,7 +380,7 @@ def test_convergence_prints_finite_times_and_a_dash_when_never_settled(
     assert _row(md, "| (c) | proposed |")[column] == "–"  # episodes.csv: inf
     assert _row(md, "| (d) | proposed |")[column] == "0.015"  # the metric, not the csv's 0.5
     assert "| (d) | PID |" not in md and "| (d) | paper |" in md
-    assert _row(md, "| (a) | proposed |")[header.index("Decay rate λ (1/s)‡")] == "–"
+    assert _row(md, "| (a) | proposed |")[header.index("Decay rate α (1/s)‡")] == "–"
     assert _row(md, "| (a) | paper |")[header.index("Settling time (s)‡")] == (
         "0.01 (optimization time)"
     )

@@ -215,7 +215,7 @@ def test_the_controller_comparison_lists_every_label_with_its_role_and_tuning(
     line = next(line for line in md.splitlines() if line.startswith("| pid_gaing |"))
     row = dict(zip(_cells(md.splitlines()[4]), _cells(line), strict=True))
     assert row["Tuned under"] == "gaing over 0.6 s" and row["Compared with"] == "adaptive_gaing"
-    for column in ("Held-out success", "Tip RMS (cm)", "λ, large offset (1/s)", "ITAE (rad·s²)",
+    for column in ("Held-out success", "Tip RMS (cm)", "α, large offset (1/s)", "ITAE (rad·s²)",
                    "Peak |τ| (N·m)", "Time at limit (s)", "Settling time (s)"):  # fmt: skip
         assert row[column] != "–", column
     assert "[" in row["Tip RMS (cm)"]  # IQM [95 % CI] over the seeds
@@ -303,7 +303,7 @@ def test_readme_results_copies_the_summary_and_the_claim_check(
 
 
 def test_every_latex_table_spells_out_its_symbols(report: Path) -> None:
-    """λ, ε, ᾱ, §, ², “ ” … are written as LaTeX commands: the .tex files are plain ASCII."""
+    """α, α*, ᾱ, §, ², “ ” … are written as LaTeX commands: the .tex files are plain ASCII."""
     for path in sorted((report / "tables").glob("*.tex")):
         odd = sorted({c for c in path.read_text() if ord(c) > 127})
         assert not odd, (path.name, odd)

@@ -4,7 +4,7 @@ statistics and two-sided verdicts.
 The paper claims about 10 % faster convergence and 18 % better accuracy than a PID. Each
 baseline an eval run ran is compared with the proposed label its ``controllers.yaml`` names
 (``compare_with``: the proposed law tuned under the baseline's criterion; old runs: ``adaptive``
-against ``pid_gaing``). Convergence is the time constant 1/λ of the Definition-1 decay rate at
+against ``pid_gaing``). Convergence is the time constant 1/α of the Definition-1 decay rate at
 the small offset on the paper tasks (lower is faster); accuracy is the tip tracking error over
 the episodes both controllers reached. The episodes with a finite, positive value for both in
 every selected eval run form a score matrix, one row per eval run (seed) and one column per
@@ -49,7 +49,7 @@ class Claim(NamedTuple):
 
 
 CLAIMS = (
-    Claim("faster convergence", "time_constant", "time constant 1/λ, small offset (s)", 0.10,
+    Claim("faster convergence", "time_constant", "time constant 1/α, small offset (s)", 0.10,
           True, False),
     Claim("better accuracy", "tip_rms_cm", "tip tracking error (cm)", 0.18, False, True),
 )  # fmt: skip
@@ -191,7 +191,7 @@ def claim_check(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
         "and covers the claimed size), larger than claimed (the CI lies above it), smaller than "
         "claimed (the CI lies between 0 and it), refuted (the CI lies below 0: the baseline is "
         "better), inconclusive (the CI contains 0).",
-        "Convergence: the time constant 1/λ of the Definition-1 decay rate λ after the small "
+        "Convergence: the time constant 1/α of the Definition-1 decay rate α after the small "
         "initial offset, on the paper tasks (lower is faster). Each row names the baseline's "
         "controller and the criterion and horizon both sides were tuned under.",
         "CI covers: the CI is over seeds; it includes the tuning's variation only where the "

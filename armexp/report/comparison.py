@@ -6,7 +6,7 @@ with a 95 % stratified bootstrap CI, the runs resampled within each task; a task
 not finite in some run (never settled, not logged) is left out of that cell and the cell says
 how many tasks it covers. The ablation compares the proposed adaptive law with the same law with
 adaptation off (b1 = 0, so ρ̂ ≡ 0) on the episodes both ran, by the relative change of the tip
-tracking error and of the time constant 1/λ when adaptation is switched off.
+tracking error and of the time constant 1/α when adaptation is switched off.
 """
 
 from __future__ import annotations
@@ -38,10 +38,10 @@ from armexp.report.tables import Context, Table
 #: The comparison's measured columns: (header, key, paper tasks only, digits).
 COLUMNS = (
     ("Tip RMS (cm)", "tip_rms_cm", False, 3),
-    ("Decay rate λ (1/s)", "decay_rate", True, 3),
-    ("Ultimate bound ε (mrad)", "ultimate_bound_mrad", True, 3),
-    ("λ, large offset (1/s)", "decay_rate_large", True, 3),
-    ("ε, large offset (mrad)", "ultimate_bound_large_mrad", True, 3),
+    ("Decay rate α (1/s)", "decay_rate", True, 3),
+    ("Ultimate bound α* (mrad)", "ultimate_bound_mrad", True, 3),
+    ("α, large offset (1/s)", "decay_rate_large", True, 3),
+    ("α*, large offset (mrad)", "ultimate_bound_large_mrad", True, 3),
     ("Settling time (s)", "settling_time", True, 3),
     ("ITAE (rad·s²)", "itae", True, 3),
     ("Peak |τ| (N·m)", "max_torque", True, 1),
@@ -50,7 +50,7 @@ COLUMNS = (
 #: What the ablation compares: (what, key, paper tasks only, reached by both).
 ABLATION = (
     ("tip RMS error", "tip_rms_cm", False, True),
-    ("time constant 1/λ", "time_constant", True, False),
+    ("time constant 1/α", "time_constant", True, False),
 )
 
 
@@ -133,7 +133,7 @@ def comparison(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
         "Tuned under: the cuckoo search's criterion and horizon, or configured gains.",
         "Held-out success: IQM over the runs of each run's share of held-out targets reached. "
         "Tip RMS: over every episode (paper tasks and held-out targets); the other columns over "
-        "the paper tasks (a)–(d). Decay rate λ and ultimate bound ε: the Definition-1 fit of "
+        "the paper tasks (a)–(d). Decay rate α and ultimate bound α*: the Definition-1 fit of "
         f"‖e1‖ after the small initial offset{small} and after the large one{large}; settling "
         "time and ITAE at the small offset. (k/4 tasks): the tasks with a finite value in every "
         "run (never settled or not logged: left out); – : none (eval runs made before these "
@@ -221,7 +221,7 @@ def sentence(changes: dict[str, tuple[float, float, float]]) -> str:
 
 def ablation(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
     """Per agent and ablation label: the relative change of the tip RMS error and of the time
-    constant 1/λ when adaptation is switched off, with CIs, and the sentence it supports."""
+    constant 1/α when adaptation is switched off, with CIs, and the sentence it supports."""
     ctx = ctx or Context()
     ep = with_derived(episodes)
     names = agent_names(ep)
@@ -252,10 +252,10 @@ def ablation(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
             numbers.append(row)
     notes = [
         "Change off vs on: (IQM with adaptation off − IQM with it on) / IQM with it on, positive "
-        "when switching adaptation off makes the tracking error or the time constant 1/λ "
+        "when switching adaptation off makes the tracking error or the time constant 1/α "
         "larger, i.e. when adaptation helps; 95 % stratified bootstrap CI over the runs within "
         "each episode. Tip RMS over the episodes both reached; time constant over the paper "
-        "tasks where both decayed (λ > 0). Adaptation contributes when a CI lies above 0.",
+        "tasks where both decayed (α > 0). Adaptation contributes when a CI lies above 0.",
         statistics_note(*run_counts(ep)),
         *context_notes(ctx),
     ]

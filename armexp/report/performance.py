@@ -8,10 +8,10 @@ resampled. With one run the cell is that run's value. A ratio against a zero, an
 or a non-finite value is shown as "–" (docs/design.md §9).
 
 Convergence (docs/design.md §8, the paper's Definition 1): after an initial reference offset the
-eval run fits ‖e1(t)‖ ≤ ᾱ‖e1(0)‖e^(−λt) + ε and logs the decay rate λ (``decay_rate``, 1/s),
-the ultimate bound ε (``ultimate_bound``, rad), the settling time of ‖e1‖ and its ITAE, at the
+eval run fits ‖e1(t)‖ ≤ ᾱ‖e1(0)‖e^(−αt) + α* and logs the decay rate α (``decay_rate``, 1/s),
+the ultimate bound α* (``ultimate_bound``, rad), the settling time of ‖e1‖ and its ITAE, at the
 small offset and (suffix ``_large``) at the large one. The claim check compares time constants
-1/λ (`with_derived`).
+1/α (`with_derived`).
 """
 
 from __future__ import annotations
@@ -168,9 +168,9 @@ def convergence_note(ctx: Context) -> str:
     offset = f" of {ctx.initial_offset} on every joint" if ctx.initial_offset else ""
     return (
         "‡ Convergence as the paper defines it (Definition 1): after an initial reference "
-        f"offset{offset}, small enough not to saturate, the fit ‖e1(t)‖ ≤ ᾱ‖e1(0)‖e^(−λt) + ε "
-        "gives the decay rate λ (1/s, higher is faster; its time constant is 1/λ) and the "
-        "ultimate bound ε; the settling time is the first time after which ‖e1‖ stays within "
+        f"offset{offset}, small enough not to saturate, the fit ‖e1(t)‖ ≤ ᾱ‖e1(0)‖e^(−αt) + α* "
+        "gives the decay rate α (1/s, higher is faster; its time constant is 1/α) and the "
+        "ultimate bound α*; the settling time is the first time after which ‖e1‖ stays within "
         "max(2 % of the offset, a fixed tolerance); – : not logged, or never settled. The paper "
         "calls its last column “optimization time” (0.009–0.05 s); its row shows it under "
         "settling time."
@@ -232,8 +232,8 @@ def proposed_labels(episodes: pd.DataFrame) -> list[str]:
 
 #: Table III's convergence columns: (header, key, digits).
 CONVERGENCE_COLUMNS = (
-    ("Decay rate λ (1/s)‡", "decay_rate", 3),
-    ("Ultimate bound ε (mrad)‡", "ultimate_bound_mrad", 3),
+    ("Decay rate α (1/s)‡", "decay_rate", 3),
+    ("Ultimate bound α* (mrad)‡", "ultimate_bound_mrad", 3),
     ("Settling time (s)‡", "settling_time", 3),
 )
 

@@ -101,7 +101,7 @@ def summary(
             )  # fmt: skip
     notes = [
         "Held-out success: IQM [95 % CI] over the seeds of each seed's share of held-out targets "
-        "reached. Convergence (time constant 1/λ) and tracking: the claim check's relative "
+        "reached. Convergence (time constant 1/α) and tracking: the claim check's relative "
         "improvement over the baseline (positive: the proposed control is better) and its "
         "two-sided verdict: consistent, larger than claimed, smaller than claimed, refuted or "
         "inconclusive (the claim check's notes say what each means). Proposed and baseline: "
