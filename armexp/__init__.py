@@ -6,7 +6,12 @@ Manipulators for Non-Repetitive Reaching Tasks" (ICMA 2024). See README.md and d
 
 import os
 
+from armexp import jit_cache
+
 __version__ = "0.1.0"
+
+# Before any compiled kernel is loaded: numba's cache keyed by the kernels' sources.
+jit_cache.configure()
 
 # Stages download small artifacts often (configs, gains, models): MLflow's per-download progress
 # bars would fill the terminal. Set on importing armexp, before any download, and inherited by the

@@ -19,7 +19,7 @@ It prints, for the paper's two-link arm with the paper's adaptive gains and eq. 
   unrolled loop earns its code only at ≥ 1.5× the generic one.
 
 A "step" is one controller period: the controller plus one RK4 step of the plant (1 ms).
-The first run compiles the numba code (cached in ``__pycache__`` afterwards).
+The first run compiles the numba code (cached afterwards, `armexp.jit_cache`).
 """
 
 from __future__ import annotations
