@@ -43,20 +43,21 @@ CANDIDATES = 20
 
 def reusable(cfg: DictConfig, reads: Reads) -> str | None:
     """The newest FINISHED run of ``reads.stage`` whose inputs match ``cfg``'s (None: none)."""
-    return _find(cfg, reads, "attributes.status = 'FINISHED'", lambda run: True)
+    client = MlflowClient(tracking.store_uri(cfg))
+    return _find(client, cfg, reads, "attributes.status = 'FINISHED'", lambda run: True)
 
 
-def resumable(cfg: DictConfig, reads: Reads, client: MlflowClient | None = None) -> str | None:
+def resumable(cfg: DictConfig, reads: Reads) -> str | None:
     """The newest KILLED or FAILED run of ``reads.stage`` with ``cfg``'s inputs and a
     checkpoint, to continue (None: none)."""
-    client = client or MlflowClient(tracking.store_uri(cfg))
+    client = MlflowClient(tracking.store_uri(cfg))
 
     def stopped_with_checkpoint(run: Run) -> bool:
         if run.info.status not in ("KILLED", "FAILED"):
             return False
         return bool(client.list_artifacts(run.info.run_id, "checkpoint"))
 
-    return _find(cfg, reads, "", stopped_with_checkpoint, client)
+    return _find(client, cfg, reads, "", stopped_with_checkpoint)
 
 
 def params_match(run: Run, cfg: DictConfig, reads: Reads) -> bool:
@@ -69,13 +70,14 @@ def params_match(run: Run, cfg: DictConfig, reads: Reads) -> bool:
 
 
 def _find(
+    client: MlflowClient,
     cfg: DictConfig,
     reads: Reads,
     status: str,
     accept: Callable[[Run], bool],
-    client: MlflowClient | None = None,
 ) -> str | None:
-    client = client or MlflowClient(tracking.store_uri(cfg))
+    """The newest run of ``reads.stage`` in ``status`` (an MLflow filter clause; "": any) that
+    ``accept`` takes, by ``cfg``'s digest, else by its legacy digest and params."""
     exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
     if exp is None:
         return None
