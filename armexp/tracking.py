@@ -15,7 +15,6 @@ The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 from __future__ import annotations
 
 import atexit
-import hashlib
 import json
 import logging
 import os
@@ -33,10 +32,11 @@ import mlflow
 from mlflow.entities import Metric, Param, Run
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
 from armexp import lineage, liveness, run_names, store
 from armexp.config import ConfigError
+from armexp.reads import Reads
 
 STAGE_TAG = "armexp.stage"
 COMMIT_TAG = lineage.COMMIT_TAG
@@ -47,19 +47,6 @@ PARENT_TAG = "mlflow.parentRunId"
 #: MLflow's experiment kind: the UIs that read it open a "Machine learning" experiment on its runs
 #: table, not on the GenAI overview of traces, which armexp never logs.
 KIND_TAG, KIND = "mlflow.experimentKind", "custom_model_development"
-#: The config a stage's result depends on; `inputs_hash` of these is tagged on every run, and
-#: ``pipeline.reuse`` reuses a FINISHED run with the same hash instead of running the stage again.
-STAGE_INPUTS: dict[str, tuple[str, ...]] = {
-    "simulate": ("seed", "robot", "controller", "scenario"),
-    "tune": ("seed", "robot", "controller", "tuner"),
-    "train": ("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
-              "train.tune_run"),
-    "eval": ("seed", "tasks", "eval.train_run", "eval.baselines", "eval.ablation",
-             "eval.baseline_gains", "eval.tune_runs", "eval.adaptive_gains", "controller.gains",
-             "eval.paper_tasks", "eval.deterministic", "eval.initial_offset", "eval.large_offset",
-             "eval.convergence_window", "eval.convergence_tolerance", "tuner.objective.criterion",
-             "tuner.objective.horizon"),
-}  # fmt: skip
 _parents: list[str] = []
 MAX_PARAM_LENGTH = 6000
 
@@ -166,25 +153,6 @@ def flatten(cfg: DictConfig | Mapping[str, Any]) -> dict[str, str]:
     return out
 
 
-def inputs_hash(cfg: DictConfig, stage: str) -> str | None:
-    """A short hash of the config sections the stage's result depends on (None: not tracked)."""
-    keys = STAGE_INPUTS.get(stage)
-    if keys is None:
-        return None
-    picked = {}
-    for key in keys:
-        # Selected in place, so interpolations (e.g. tuner.seed: ${seed}) resolve against the root.
-        node = OmegaConf.select(cfg, key)
-        value = (
-            OmegaConf.to_container(node, resolve=True)
-            if isinstance(node, DictConfig | ListConfig)
-            else node
-        )
-        picked[key] = {"v": value}  # the shape earlier stores' hashes were made from
-    text = json.dumps(picked, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
 @contextmanager
 def parent(run_id: str) -> Iterator[None]:
     """Stage runs started inside are children of ``run_id`` (a pipeline's nested runs)."""
@@ -254,11 +222,14 @@ def stage_run(
     parent_run_id: str | None = None,
     extra_tags: Mapping[str, str] | None = None,
     resume_run_id: str | None = None,
+    reads: Reads | None = None,
 ) -> Iterator[mlflow.ActiveRun]:
     """One MLflow run for one stage execution, ended FINISHED / FAILED / KILLED truthfully.
 
     ``run_name`` None: `armexp.run_names.run_name` names it. ``resume_run_id`` reopens an existing
-    run (its name, params and config stay as first logged).
+    run (its name, params and config stay as first logged). ``reads``: the stage's declaration
+    of what it reads; its digest of ``cfg`` is tagged ``armexp.inputs_hash``, by which
+    ``pipeline.reuse`` finds the run (`armexp.reuse`).
     """
     experiment_id = setup(cfg)
     tags = {
@@ -268,9 +239,8 @@ def stage_run(
         **(extra_tags or {}),
     }
     tags.update(lineage.lineage_tags())
-    digest = inputs_hash(cfg, stage)
-    if digest:
-        tags[INPUTS_TAG] = digest
+    if reads is not None:
+        tags[INPUTS_TAG] = reads.digest(cfg)
     sweep = OmegaConf.select(cfg, "tracking.sweep_run")
     if sweep:
         tags[SWEEP_TAG] = sweep

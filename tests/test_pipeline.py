@@ -112,6 +112,30 @@ def test_pipeline_reuse_skips_stages_whose_inputs_match(pipeline_store: Path) ->
     assert len(_runs(pipeline_store, "train")) == before["train"] + 1
 
 
+def test_reuse_runs_a_stage_again_when_a_key_it_reads_changed(pipeline_store: Path) -> None:
+    """``env.reference`` is read by tune (the tuning scenarios' reference): a pipeline with
+    ``hold`` must not reuse the tune runs made with ``ramp``, and its tune runs record ``hold``."""
+    runs = pipeline_store
+    before = {r.info.run_id for r in _runs(runs, "tune")}
+    command = ["pipeline", *SMALL, "pipeline.reuse=true", "env.reference=hold"]
+    assert main([*command, f"tracking.runs_dir={runs}"]) == 0
+    parent = _runs(runs, "pipeline")[-1]
+    reused = [k for k in parent.data.tags if k.startswith("armexp.reused.tune")]
+    assert reused == []
+    tunes = {k.removeprefix("armexp.run."): v for k, v in parent.data.tags.items()
+             if k.startswith("armexp.run.tune")}  # fmt: skip
+    assert set(tunes) == set(tune_steps(compose_config(SMALL)))
+    assert not set(tunes.values()) & before
+    for run in _runs(runs, "tune"):
+        if run.info.run_id in tunes.values():
+            assert run.data.params["env.reference"] == "hold"
+    # The same command again reuses what the first made with hold.
+    assert main([*command, f"tracking.runs_dir={runs}"]) == 0
+    again = _runs(runs, "pipeline")[-1]
+    assert {again.data.tags[f"armexp.reused.{s}"] for s in tunes} == set(tunes.values())
+    assert "armexp.reused.train" in again.data.tags
+
+
 def test_failing_stage_fails_the_parent_and_names_itself(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

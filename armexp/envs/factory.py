@@ -28,10 +28,12 @@ def settings_from_config(
     cfg: DictConfig,
     controller: str | None = None,
     gains: Array | dict[str, Any] | None = None,
+    with_tasks: bool = True,
 ) -> ReachSettings:
     """The environment of a composed config; ``controller``/``gains`` replace the configured
     controller (evaluation runs the same plant under PID too). Gains may be a vector or the
-    config form (``{"a0": …}`` / ``{"kp": [...], …}``)."""
+    config form (``{"a0": …}`` / ``{"kp": [...], …}``). ``with_tasks=False``: no named tasks
+    (``tasks.targets`` is not read; training draws its targets)."""
     robot = cfg.robot
     n = len(robot.lengths)
     name = str(cfg.controller.name) if controller is None else controller
@@ -55,7 +57,7 @@ def settings_from_config(
         joint_upper=vec(robot.joint_upper),
         velocity_bound=vec(robot.velocity_bound),
         obstacles=obstacle_array(cfg),
-        tasks=task_targets(cfg),
+        tasks=task_targets(cfg) if with_tasks else {},
         action_period=float(e.action_period),
         max_steps=int(e.max_steps),
         reach_threshold=float(e.reach_threshold),

@@ -109,7 +109,7 @@ def _train_run(cfg: DictConfig, section: str) -> Any:
         match={
             "robot.name": str(cfg.robot.name),
             "obstacles.name": str(cfg.obstacles.name),
-            "obstacles.circles": tracking.flatten(cfg)["obstacles.circles"],
+            "obstacles.circles": tracking.flatten(cfg.obstacles)["circles"],
         },
         key=f"{section}.train_run",
     )

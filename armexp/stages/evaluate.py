@@ -46,6 +46,7 @@ from armexp import console, tracking
 from armexp.agents.rollout import Episode, convergence_metrics, episode_metrics, rollout
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
+from armexp.reads import Reads
 from armexp.render.animation import FORMATS
 from armexp.sim.trajectory import trajectory_columns
 from armexp.stages import animate
@@ -59,6 +60,19 @@ from armexp.stages.controller_set import (
 
 #: The perturbed runs of a paper task: (``eval`` key of the offset, metric and file suffix).
 PERTURBATIONS = (("initial_offset", ""), ("large_offset", "_large"))
+#: What eval reads of the config (`armexp.reads`): ``eval`` (the policy's train run, the labels
+#: and where their gains come from, the convergence runs, what is logged), the targets
+#: (``tasks``) and the seed of the episodes; the train run is looked up by robot and obstacles,
+#: the baselines' tune runs by ``tuner.objective.criterion``, and ``eval.adaptive_gains=config``
+#: (or a baseline's configured gains) reads ``controller.name`` and ``controller.gains``. The
+#: policy's environment is its train run's config, so the ``eval.train_run`` id hashes it. The
+#: progress bar, run name and store are not hashed.
+READS = Reads(
+    "eval",
+    hashed=("seed", "eval", "tasks", "robot.name", "obstacles", "controller.name",
+            "controller.gains", "tuner.objective.criterion"),
+    unhashed=("eval.progress", "eval.run_name", "tracking"),
+)  # fmt: skip
 
 
 def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]:
@@ -72,11 +86,15 @@ def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]
     return out
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> tracking.StageResult:
+    """Evaluate on `READS`' view of the composed config; the run logs the composed config."""
+    cfg = READS.view(composed)
     policy = load_policy(cfg, "eval")
     entries = controller_set(cfg, policy)
     tags = {**policy.tags, **lineage_tags(entries)}
-    with tracking.stage_run(cfg, "eval", run_name=cfg.eval.run_name, extra_tags=tags) as active:
+    with tracking.stage_run(
+        composed, "eval", run_name=cfg.eval.run_name, extra_tags=tags, reads=READS
+    ) as active:
         described = {e.label: e.record() for e in entries}
         mlflow.log_text(yaml.safe_dump(described, sort_keys=False), CONTROLLERS_FILE)
         for entry in entries:

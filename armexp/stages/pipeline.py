@@ -9,10 +9,11 @@ for every baseline of ``eval.baselines`` under its own criterion (``tune_pid_gai
 ``tune_pid_itae``, ``tune_computed_torque``); and ``tune_adaptive_<criterion>``, the adaptive law
 under each other criterion a baseline needs (the proposed side of that comparison). With
 ``eval.baseline_gains=config`` only ``tune`` runs. With ``pipeline.reuse=true`` a stage whose
-inputs (the config sections of `armexp.tracking.STAGE_INPUTS`, upstream run ids included) match a
-FINISHED run's is not run again: that run's id is used and tagged on the parent
-(``armexp.reused.<step>``). A failing stage marks the parent FAILED and names itself in
-``armexp.failed_stage``.
+inputs match a FINISHED run's is not run again: that run's id is used and tagged on the parent
+(``armexp.reused.<step>``). A stage's inputs are the config keys it reads that change its result,
+upstream run ids included, as its module declares them (``READS``, `armexp.reads`; the stage runs
+on a view of the config that lets it read nothing else); `armexp.reuse` finds the run. A failing
+stage marks the parent FAILED and names itself in ``armexp.failed_stage``.
 """
 
 from __future__ import annotations
@@ -22,10 +23,9 @@ import logging
 from collections.abc import Callable
 
 import mlflow
-from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from armexp import tracking
+from armexp import reuse, tracking
 from armexp.baselines import (
     ADAPTIVE,
     BASELINES,
@@ -36,6 +36,7 @@ from armexp.baselines import (
 )
 from armexp.config import ConfigError, validate
 from armexp.gains import criterion_of, with_criterion
+from armexp.reads import Reads
 
 log = logging.getLogger(__name__)
 
@@ -128,44 +129,6 @@ def _with_seed(cfg: DictConfig, seed: int) -> DictConfig:
     return out
 
 
-def _reusable(cfg: DictConfig, stage: str) -> str | None:
-    digest = tracking.inputs_hash(cfg, stage)
-    if digest is None:
-        return None
-    client = MlflowClient(tracking.store_uri(cfg))
-    exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
-    if exp is None:
-        return None
-    runs = client.search_runs(
-        [exp.experiment_id],
-        f"tags.`{tracking.STAGE_TAG}` = '{stage}' and tags.`{tracking.INPUTS_TAG}` = '{digest}' "
-        "and attributes.status = 'FINISHED'",
-        order_by=["attributes.start_time DESC"],
-        max_results=1,
-    )
-    return runs[0].info.run_id if runs else None
-
-
-def _resumable(cfg: DictConfig) -> str | None:
-    """A KILLED or FAILED train run with these inputs and a checkpoint, to continue."""
-    digest = tracking.inputs_hash(cfg, "train")
-    client = MlflowClient(tracking.store_uri(cfg))
-    exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
-    if digest is None or exp is None:
-        return None
-    runs = client.search_runs(
-        [exp.experiment_id],
-        f"tags.`{tracking.STAGE_TAG}` = 'train' and tags.`{tracking.INPUTS_TAG}` = '{digest}'",
-        order_by=["attributes.start_time DESC"],
-        max_results=20,
-    )
-    for run in runs:
-        stopped = run.info.status in ("KILLED", "FAILED")
-        if stopped and client.list_artifacts(run.info.run_id, "checkpoint"):
-            return str(run.info.run_id)
-    return None
-
-
 def run(cfg: DictConfig) -> tracking.StageResult:
     """One pipeline, or with ``pipeline.seeds`` a study of one pipeline per seed: the parent run,
     with the stage runs' ids by step as its summary."""
@@ -199,12 +162,12 @@ def run_one(
 
         def step(
             name: str,
-            stage: str,
+            reads: Reads | None,
             stage_cfg: DictConfig,
             fn: Callable[[DictConfig], tracking.StageResult],
         ) -> str:
-            if cfg.pipeline.reuse:
-                found = _reusable(stage_cfg, stage)
+            if cfg.pipeline.reuse and reads is not None:
+                found = reuse.reusable(stage_cfg, reads)
                 if found:
                     print(f"pipeline: {name} reuses run {found}")
                     mlflow.set_tag(f"armexp.reused.{name}", found)
@@ -226,29 +189,29 @@ def run_one(
             return ids[name]
 
         for tune_step, tune_cfg in tune_cfgs.items():
-            step(tune_step, "tune", tune_cfg, tune.run)
+            step(tune_step, tune.READS, tune_cfg, tune.run)
         with open_dict(cfg):
             if cfg.train.gains == "tuned":
                 cfg.train.tune_run = ids["tune"]
-            stopped = _resumable(cfg) if cfg.pipeline.reuse else None
-            if stopped and not _reusable(cfg, "train"):
+            stopped = reuse.resumable(cfg, train.READS) if cfg.pipeline.reuse else None
+            if stopped and not reuse.reusable(cfg, train.READS):
                 print(f"pipeline: train resumes the interrupted run {stopped}")
                 mlflow.set_tag("armexp.resumed.train", stopped)
                 cfg.train.resume = stopped
-                step("train", "train", cfg, lambda c: train.resume(c, check_overrides=False))
+                step("train", train.READS, cfg, lambda c: train.resume(c, check_overrides=False))
                 cfg.train.resume = None
             else:
-                step("train", "train", cfg, train.run)
+                step("train", train.READS, cfg, train.run)
             cfg.eval.train_run = ids["train"]
             if cfg.eval.baseline_gains == "tuned":
                 cfg.eval.tune_runs = eval_tune_runs(cfg, ids)
-            step("eval", "eval", cfg, evaluate.run)
+            step("eval", evaluate.READS, cfg, evaluate.run)
             if paper_gains_row:
-                step("eval_paper", "eval", paper_gains_config(cfg), evaluate.run)
+                step("eval_paper", evaluate.READS, paper_gains_config(cfg), evaluate.run)
             if report_:
                 cfg.report.pipeline_run = parent_id
                 cfg.report.eval_runs = [ids["eval"]]
-                step("report", "report", cfg, report.run)
+                step("report", None, cfg, report.run)
         mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(ids)), "runs.yaml")
         print(
             f"pipeline: run {parent_id} | "

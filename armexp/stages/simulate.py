@@ -18,15 +18,27 @@ from omegaconf import DictConfig
 
 from armexp import tracking
 from armexp.builders import build_plant, build_scenario, controller_gains
+from armexp.reads import Reads
 from armexp.sim.metrics import tracking_metrics
 from armexp.sim.simulator import Simulator
 from armexp.sim.trajectory import trajectory_columns
 
 log = logging.getLogger(__name__)
+#: What simulate reads of the config (`armexp.reads`): the plant, the controller and its gains,
+#: the scenario, the reference between actions (``env.reference``) and the seed of the
+#: disturbance draws; the run name and store are not hashed.
+READS = Reads(
+    "simulate",
+    hashed=("seed", "robot", "controller", "scenario", "env.reference"),
+    unhashed=("simulate.run_name", "tracking"),
+)
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
-    with tracking.stage_run(cfg, "simulate", run_name=cfg.simulate.run_name) as active:
+def run(composed: DictConfig) -> tracking.StageResult:
+    """Simulate on `READS`' view of the composed config; the run logs the composed config."""
+    cfg = READS.view(composed)
+    name = cfg.simulate.run_name
+    with tracking.stage_run(composed, "simulate", run_name=name, reads=READS) as active:
         plant = build_plant(cfg)
         scenario = build_scenario(cfg)
         sim = Simulator(

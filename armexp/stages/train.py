@@ -50,6 +50,7 @@ from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.gains import resolve
+from armexp.reads import Reads
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,19 @@ GAINS_SOURCE_TAG = "armexp.gains_source"
 RESUMED_TAG = "armexp.resumed_from_step"
 #: The agent config group option (the report names the preset by it).
 AGENT_PRESET_TAG = "armexp.agent_preset"
+#: What train reads of the config (`armexp.reads`): the seed, the environment (robot, obstacles,
+#: ``env``; no named tasks: training draws its targets), the controller in the loop and where its
+#: gains come from (``train.gains``, ``train.tune_run``, or the latest tune run under
+#: ``tuner.objective.criterion``), the agent with its aids, and the callbacks. Where it records
+#: (run name, store, checkpoints, logging interval, progress bar), the run it resumes and its
+#: torch threads are not hashed.
+READS = Reads(
+    "train",
+    hashed=("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
+            "train.tune_run", "train.callbacks", "tuner.objective.criterion"),
+    unhashed=("train.run_name", "train.resume", "train.progress", "train.torch_threads",
+              "train.checkpoint_every", "train.log_every", "tracking"),
+)  # fmt: skip
 
 
 def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str]]:
@@ -91,24 +105,30 @@ def step_budget(cfg: DictConfig) -> int:
     return bound if cap is None else min(bound, int(cap))
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> tracking.StageResult:
+    """Train on `READS`' view of the composed config; the run logs the composed config whole."""
+    cfg = READS.view(composed)
     if cfg.train.resume:
-        return resume(cfg)
+        return resume(composed)
     # A bad add-on stops here, before a run exists.
     build_addons(cfg.agent.aids)
     build_addons(cfg.train.callbacks, "train.callbacks")
     gains, tags = controller_gains_for(cfg)
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
-    with tracking.stage_run(cfg, "train", run_name=cfg.train.run_name, extra_tags=tags) as active:
+    with tracking.stage_run(
+        composed, "train", run_name=cfg.train.run_name, extra_tags=tags, reads=READS
+    ) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
         summary = _learn(cfg, gains, active.info.run_id, None, {}, _gains_from(tags))
         return tracking.StageResult(active.info.run_id, summary)
 
 
-def resume(cfg: DictConfig, check_overrides: bool = True) -> tracking.StageResult:
-    """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run
-    (``check_overrides=False``: the caller knows ``cfg`` matches the run's inputs, e.g. the
-    pipeline with ``pipeline.reuse``)."""
+def resume(composed: DictConfig, check_overrides: bool = True) -> tracking.StageResult:
+    """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run, with the
+    run's own config (``check_overrides=False``: the caller knows the composed config matches
+    the run's inputs, e.g. the pipeline with ``pipeline.reuse``). Both configs are read through
+    `READS`."""
+    cfg = READS.view(composed)
     run_id = str(cfg.train.resume)
     found = tracking.find_stage_run(
         cfg, "train", run_id=run_id, key="train.resume", statuses=("KILLED", "FAILED", "RUNNING")
@@ -130,8 +150,8 @@ def resume(cfg: DictConfig, check_overrides: bool = True) -> tracking.StageResul
     model_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{MODEL_FILE}", cfg)
     original = OmegaConf.load(tracking.download_artifact(run_id, "config.yaml", cfg))
     assert isinstance(original, DictConfig)
-    original.tracking = cfg.tracking
-    original.train.progress = cfg.train.progress
+    original.tracking = composed.tracking
+    original.train.progress = composed.train.progress
     if check_overrides:
         _apply_resume_overrides(original, cfg, run_id)
     gains = yaml.safe_load(tracking.download_artifact(run_id, "gains.yaml", cfg).read_text())
@@ -141,12 +161,13 @@ def resume(cfg: DictConfig, check_overrides: bool = True) -> tracking.StageResul
         "train",
         resume_run_id=run_id,
         extra_tags={RESUMED_TAG: str(state["num_timesteps"])},
+        reads=READS,
     ):
         if tracking.ERROR_TAG in found.data.tags:
             # The interruption that stopped it is over: the run ends with its own new status.
             tracking.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, tracking.ERROR_TAG))
         origin = _gains_from(found.data.tags)
-        summary = _learn(original, gains, run_id, str(model_path), state, origin)
+        summary = _learn(READS.view(original), gains, run_id, str(model_path), state, origin)
         return tracking.StageResult(run_id, summary)
 
 
@@ -193,7 +214,7 @@ def _learn(
     addons = [*build_addons(agent.aids), *build_addons(tr.callbacks, "train.callbacks")]
     if tr.torch_threads:
         torch.set_num_threads(int(tr.torch_threads))
-    settings = settings_from_config(cfg, gains=gains)
+    settings = settings_from_config(cfg, gains=gains, with_tasks=False)
     venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
     model: ResumableSAC
     if model_path is None:

@@ -32,6 +32,7 @@ from armexp import console, tracking
 from armexp.builders import build_plant, controller_gains, controller_kind
 from armexp.config import ConfigError
 from armexp.gains import CRITERION_TAG, HORIZON_TAG
+from armexp.reads import Reads
 from armexp.sim.controllers import (
     ADAPTIVE,
     PAPER_GAINS,
@@ -51,6 +52,15 @@ from armexp.tune.space import SearchSpace, coordinate_names
 from armexp.tune.stability import pose_grid
 
 FLUSH_EVERY = 25
+#: What tune reads of the config (`armexp.reads`): the plant (``robot``, ``controller.dt``), the
+#: controller's gains and search box, the search and its objective, and the reference between
+#: actions the scenarios are driven with (``env.reference``); the progress bar, run name and
+#: store are not hashed.
+READS = Reads(
+    "tune",
+    hashed=("robot", "controller", "tuner", "env.reference"),
+    unhashed=("tune.progress", "tune.run_name", "tracking"),
+)
 
 
 def search_space(cfg: DictConfig) -> SearchSpace:
@@ -232,11 +242,13 @@ def _best_metrics(
     return metrics, bound_hits
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> tracking.StageResult:
+    """Tune on `READS`' view of the composed config; the run logs the composed config whole."""
+    cfg = READS.view(composed)
     space = search_space(cfg)
     settings = objective_settings(cfg)
     criterion = settings.criterion
-    with tracking.stage_run(cfg, "tune", run_name=cfg.tune.run_name) as active:
+    with tracking.stage_run(composed, "tune", run_name=cfg.tune.run_name, reads=READS) as active:
         mlflow.set_tags({CRITERION_TAG: criterion, HORIZON_TAG: f"{settings.horizon:g}"})
         objective = build_objective(cfg)
         n = len(cfg.robot.lengths)
