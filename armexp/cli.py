@@ -10,8 +10,8 @@ traceback.
 from __future__ import annotations
 
 import contextlib
-import errno
 import importlib
+import logging
 import os
 import sys
 import tempfile
@@ -175,19 +175,23 @@ def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     return overrides
 
 
-def precheck(overrides: Sequence[str], multirun: bool, search_path: Sequence[str] = ()) -> None:
+def precheck(
+    overrides: Sequence[str], multirun: bool, search_path: Sequence[str] = (), writes: bool = True
+) -> None:
     """Compose and validate the run's config, or every job's of a sweep (tens of milliseconds
-    a job, small beside the job itself), before Hydra starts any."""
+    a job, small beside the job itself), before Hydra starts any; ``writes``: the command will
+    write to the runs folder (``--cfg job`` only prints)."""
     from armexp.config import compose_config
 
     if not multirun:
-        _writable(compose_config([*search_path, *overrides]))
-        return
-    from armexp.sweeps import sweep_combinations
+        cfg = compose_config([*search_path, *overrides])
+    else:
+        from armexp.sweeps import sweep_combinations
 
-    for job in sweep_combinations(overrides):
-        cfg = compose_config([*search_path, *job])
-    _writable(cfg)
+        for job in sweep_combinations(overrides):
+            cfg = compose_config([*search_path, *job])
+    if writes:
+        _writable(cfg)
 
 
 def _writable(cfg: Any) -> None:
@@ -207,13 +211,19 @@ def _writable(cfg: Any) -> None:
 
 
 def run_stage(stage: str, args: Sequence[str]) -> int:
-    from armexp.config import ConfigError, config_dir, normalize_overrides, register_schemas
+    from armexp.config import (
+        ConfigError,
+        config_dir,
+        expand_home,
+        normalize_overrides,
+        register_schemas,
+    )
 
     try:
-        line = split_args(args)
+        line = split_args([expand_home(a) for a in args])
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
         if not line.runs_no_job:
-            precheck(overrides, line.multirun, _search_path(line))
+            precheck(overrides, line.multirun, _search_path(line), not line.shows_config)
             if line.multirun and not line.shows_config:
                 from armexp.launchers import check_launcher
 
@@ -225,7 +235,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     import hydra
 
-    from armexp import sweeps
+    from armexp import disk, sweeps
 
     def job(cfg: Any) -> Any:
         from armexp.config import validate as check
@@ -241,14 +251,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         except ConfigError as exc:  # e.g. a missing upstream run found only at run time
             print(f"armexp {stage}: {exc}", file=sys.stderr)
             raise SystemExit(EXIT_USAGE) from None
-        except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+        except Exception as exc:
+            if not disk.is_full(exc):
                 raise
-            print(
-                f"armexp {stage}: the disk is full ({exc.strerror}: {exc.filename or 'a write'}); "
-                "the run is marked FAILED with what it logged before; free space and run again.",
-                file=sys.stderr,
-            )
+            print(f"armexp {stage}: {disk_full_sentence(exc)}", file=sys.stderr)
             raise SystemExit(1) from None
 
     register_schemas()
@@ -297,6 +303,29 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     return 0
 
 
+def disk_full_sentence(exc: BaseException) -> str:
+    """The one sentence for a stage stopped by a full disk (`armexp.disk`)."""
+    from armexp import disk
+
+    found = next((e for e in disk.chain(exc) if isinstance(e, disk.DiskFull)), None)
+    if found is None:
+        return (
+            f"the disk is full ({disk.reason(exc)}) and no run was started; free space and run "
+            "again."
+        )
+    if found.marked:
+        what = (
+            f"run {found.run_id} is marked FAILED with what it logged before, and no file was "
+            "left half-written"
+        )
+    else:
+        what = (
+            f"run {found.run_id} could not be marked FAILED (its store is on the full disk), so "
+            "the next armexp command will"
+        )
+    return f"the disk is full ({found.detail}); {what}; free space and run again."
+
+
 def _terminate_as_interrupt() -> None:
     """SIGTERM (a scheduler's stop, `kill`) ends a stage like Ctrl-C: run KILLED, state kept."""
     import signal
@@ -314,6 +343,8 @@ def _terminate_as_interrupt() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("HYDRA_FULL_ERROR", "0")
+    # A log file that cannot be written (a full disk) must not print a traceback per record.
+    logging.raiseExceptions = False
     quiet_warnings()
     if not args or args[0] in ("-h", "--help", "help"):
         print(usage())

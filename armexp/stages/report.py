@@ -68,7 +68,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
         cfg, "report", run_name=cfg.report.run_name, extra_tags={REPORT_RUNS_TAG: ids[:5000]}
     ) as active:
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
-        tracking.retry(lambda: mlflow.log_artifacts(str(folder), "report"))
+        tracking.log_folder(folder, "report")
         print(
             f"report: run {active.info.run_id} | {len(selection.evals)} eval run(s) "
             f"({selection.how}) | open {folder / 'index.html'}"
