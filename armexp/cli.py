@@ -309,10 +309,7 @@ def disk_full_sentence(exc: BaseException) -> str:
 
     found = next((e for e in disk.chain(exc) if isinstance(e, disk.DiskFull)), None)
     if found is None:
-        return (
-            f"the disk is full ({disk.reason(exc)}) and no run was started; free space and run "
-            "again."
-        )
+        return f"{disk.reason(exc)} and no run was started; free space and run again."
     if found.marked:
         what = (
             f"run {found.run_id} is marked FAILED with what it logged before, and no file was "
@@ -323,7 +320,7 @@ def disk_full_sentence(exc: BaseException) -> str:
             f"run {found.run_id} could not be marked FAILED (its store is on the full disk), so "
             "the next armexp command will"
         )
-    return f"the disk is full ({found.detail}); {what}; free space and run again."
+    return f"{found.detail}; {what}; free space and run again."
 
 
 def _terminate_as_interrupt() -> None:

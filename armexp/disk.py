@@ -54,14 +54,24 @@ def is_full(exc: BaseException | None) -> bool:
     return False
 
 
+#: What each of `FULL_ERRNOS` means for the user.
+_MEANING = {
+    errno.ENOSPC: "the disk is full",
+    errno.EDQUOT: "the disk quota is used up",
+    errno.EFBIG: "a file went over this process's file size limit (ulimit -f)",
+}
+
+
 def reason(exc: BaseException) -> str:
-    """What could not be written, in a few words: the OS's error and its file, else SQLite's."""
+    """What stopped the write, as the start of a sentence: the OS's error (and its file), else
+    SQLite's, e.g. ``the disk is full (No space left on device: /runs/…/model.zip)``."""
     for e in chain(exc):
         if isinstance(e, DiskFull):
             return e.detail
         if isinstance(e, OSError) and e.errno in FULL_ERRNOS:
-            return f"{e.strerror}: {e.filename}" if e.filename else str(e.strerror)
-    return "database or disk is full: the MLflow store"
+            where = f": {e.filename}" if e.filename else ""
+            return f"{_MEANING[e.errno]} ({e.strerror}{where})"
+    return "the disk is full (the MLflow store: database or disk is full)"
 
 
 def reserve_path(db: Path) -> Path:
