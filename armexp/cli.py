@@ -195,7 +195,9 @@ def precheck(
 
 
 def _writable(cfg: Any) -> None:
-    """The runs folder (Hydra's job folders and the default store go there) can be made."""
+    """The runs folder (Hydra's job folders and the default store go there) can be made, and
+    its disk has room to start (`armexp.disk.MIN_FREE_BYTES`)."""
+    from armexp import disk
     from armexp.config import ConfigError
 
     folder = Path(str(cfg.tracking.runs_dir)).resolve()
@@ -208,6 +210,12 @@ def _writable(cfg: Any) -> None:
             f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write there "
             f"({exc.strerror}); give a folder you can write to."
         ) from None
+    free = disk.free_bytes(folder)
+    if free < disk.MIN_FREE_BYTES:
+        raise ConfigError(
+            f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed now: its disk is full "
+            f"({free // 1024} KB free); free space and run again."
+        )
 
 
 def run_stage(stage: str, args: Sequence[str]) -> int:

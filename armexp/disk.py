@@ -18,6 +18,9 @@ from pathlib import Path
 #: Room kept beside a SQLite store for the last writes of a run stopped by a full disk
 #: (an error tag and a status take a few pages of the database and of its journal).
 RESERVE_BYTES = 256 * 1024
+#: The least room a stage starts with: Hydra writes its job folder (about 16 KB) before armexp
+#: can catch a failed write.
+MIN_FREE_BYTES = 32 * 1024
 #: Errors that say a write found no room (EFBIG: over the file size limit, ``ulimit -f``).
 FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 #: The same, as SQLite (through SQLAlchemy and MLflow) words it.
@@ -72,6 +75,12 @@ def reason(exc: BaseException) -> str:
             where = f": {e.filename}" if e.filename else ""
             return f"{_MEANING[e.errno]} ({e.strerror}{where})"
     return "the disk is full (the MLflow store: database or disk is full)"
+
+
+def free_bytes(folder: Path) -> int:
+    """The room left to this user on the file system of ``folder``."""
+    st = os.statvfs(folder)
+    return st.f_bavail * st.f_frsize
 
 
 def reserve_path(db: Path) -> Path:

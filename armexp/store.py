@@ -102,7 +102,7 @@ def _open_sqlite(uri: str, reading: bool) -> None:
     fail or leave it half-migrated. Under the lock its artifact locations follow the folder it
     is in now (`armexp.anchor`) and its reserve is kept (`armexp.disk`). ``reading``: a command
     that only reads, for which the store must exist and may be read-only."""
-    db = Path(uri[len("sqlite:///") :])
+    db = Path(uri[len("sqlite:///") :]).resolve()
     if reading and not db.is_file():
         raise ConfigError(
             f"tracking.runs_dir={db.parent} is not allowed here: it holds no MLflow store (no "

@@ -95,12 +95,15 @@ def store_uri(cfg: DictConfig, reading: bool = False) -> str:
 
 
 def artifact_root(cfg: DictConfig) -> str | None:
-    """Where a new experiment stores artifacts (None: the server decides)."""
+    """Where a new experiment stores artifacts (None: the server decides): a SQLite store's
+    ``artifacts`` folder beside its database unless ``tracking.artifact_root`` says otherwise."""
     if cfg.tracking.artifact_root:
         return str(cfg.tracking.artifact_root)
-    if cfg.tracking.uri and not str(cfg.tracking.uri).startswith("sqlite"):
+    uri = str(cfg.tracking.uri or "")
+    if uri and not uri.startswith("sqlite:///"):
         return None
-    return (Path(cfg.tracking.runs_dir).resolve() / "artifacts").as_uri()
+    db = Path(uri[len("sqlite:///") :]) if uri else Path(cfg.tracking.runs_dir) / "mlflow.db"
+    return anchor.store_artifacts(db.resolve()).as_uri()
 
 
 is_lock = store.is_locked

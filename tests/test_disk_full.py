@@ -88,17 +88,17 @@ def runs_of(runs: Path, stage: str) -> list[tuple[str, str, str | None]]:
 def assert_failed_cleanly(folder: Path, stage: str, why: str = "the disk is full (") -> None:
     """Exit 1 with one sentence; the run FAILED with the error; every file in the store
     complete: no MLflow staging file, and every model a whole zip."""
+    files = [p for p in (folder / "runs").rglob("*") if p.is_file()]
+    assert [p for p in files if p.name.startswith(".artifact")] == []
+    for model in (p for p in files if p.name == "model.zip"):
+        with zipfile.ZipFile(model) as z:
+            assert z.testzip() is None, model
     err = (folder / "err").read_text().strip().splitlines()
     assert (folder / "rc").read_text().strip() == "1", err[-30:]
     assert len(err) == 1, err[-30:]
     assert f"armexp {stage}: {why}" in err[0] and "is marked FAILED" in err[0]
     (run,) = runs_of(folder / "runs", stage)
     assert run[1] == "FAILED" and run[2] and run[0][:8] in err[0], run
-    files = [p for p in (folder / "runs").rglob("*") if p.is_file()]
-    assert [p for p in files if p.name.startswith(".artifact")] == []
-    for model in (p for p in files if p.name == "model.zip"):
-        with zipfile.ZipFile(model) as z:
-            assert z.testzip() is None, model
 
 
 def test_a_full_disk_cuts_no_model_short(tmp_path: Path) -> None:
@@ -188,3 +188,16 @@ def test_the_room_kept_beside_the_store_takes_the_last_writes(tmp_path: Path) ->
     (run,) = runs_of(folder / "runs", "simulate")[1:]
     assert run[1] == "FAILED" and "No space left on device" in str(run[2])
     assert not (folder / "runs" / "mlflow.db.reserve").exists()
+
+
+def test_a_disk_with_no_room_to_start_is_one_sentence(tmp_path: Path) -> None:
+    """Too little room for Hydra's job folder: said before anything is written."""
+    command = f"{ARMEXP} simulate scenario=hold seed=1 tracking.runs_dir=$RUNS"
+    folder = on_a_full_disk(tmp_path, "8 * 1024", command)
+    err = (folder / "err").read_text().strip().splitlines()
+    assert (folder / "rc").read_text().strip() == "2" and len(err) == 1, err
+    assert (
+        f"tracking.runs_dir={folder.parent / 'disk' / 'runs'} is not allowed now: its disk is full ("
+        in err[0]
+    )
+    assert len(runs_of(folder / "runs", "simulate")) == 1  # the one made before the disk filled

@@ -67,7 +67,9 @@ def folders(runs: Path) -> set[str]:
     return {p.name for p in root.iterdir()} if root.is_dir() else set()
 
 
-def test_a_copied_project_trains_into_itself_and_outlives_the_original(tmp_path: Path) -> None:
+def test_a_copied_project_trains_into_itself_and_outlives_the_original(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """``cp -a proj proj2; cd proj2; armexp train …; rm -rf proj; armexp eval …``."""
     proj, copy = tmp_path / "proj", tmp_path / "proj2"
     train = ["train", "controller.gains=paper", *SMALL_TRAIN]
@@ -86,6 +88,11 @@ def test_a_copied_project_trains_into_itself_and_outlives_the_original(tmp_path:
     assert run_in(copy / "runs", "eval", f"eval.train_run={second}", *baseline) == 0
     (ev,) = stage_runs(copy / "runs", "eval")
     assert ev.info.status == "FINISHED" and ev.info.run_id in folders(copy / "runs")
+    capsys.readouterr()
+    play = ["play", f"play.train_run={first}", "play.tasks=[c]", "play.targets=[[1.2,0.5]]"]
+    assert run_in(copy / "runs", *play) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert f" in {copy / 'runs' / 'artifacts'}" in line, line
 
 
 def test_a_new_folder_at_a_moved_projects_old_path_leaves_both_whole(tmp_path: Path) -> None:
