@@ -196,8 +196,6 @@ def test_a_disk_with_no_room_to_start_is_one_sentence(tmp_path: Path) -> None:
     folder = on_a_full_disk(tmp_path, "8 * 1024", command)
     err = (folder / "err").read_text().strip().splitlines()
     assert (folder / "rc").read_text().strip() == "2" and len(err) == 1, err
-    assert (
-        f"tracking.runs_dir={folder.parent / 'disk' / 'runs'} is not allowed now: its disk is full ("
-        in err[0]
-    )
+    runs = folder.parent / "disk" / "runs"
+    assert f"tracking.runs_dir={runs} is not allowed now: its disk is full (" in err[0]
     assert len(runs_of(folder / "runs", "simulate")) == 1  # the one made before the disk filled
