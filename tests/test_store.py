@@ -237,6 +237,17 @@ def test_an_unknown_users_tilde_is_one_sentence(
     assert list(tmp_path.iterdir()) == []
 
 
+def test_an_empty_runs_dir_is_one_sentence(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Not a store in the working folder and Hydra's folders in /hydra."""
+    monkeypatch.chdir(tmp_path)
+    assert main([*SIM, "tracking.runs_dir=''"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "tracking.runs_dir='' is not allowed: it names no folder" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("key", ["report.out_dir", "tracking.runs_dir"])
 def test_a_path_with_a_name_too_long_is_one_sentence(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], key: str

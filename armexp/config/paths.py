@@ -53,7 +53,10 @@ def _limit(path: Path, name: str, default: int) -> int:
 
 def path_problem(value: str) -> str | None:
     """Why the folder ``value`` cannot be used (an unexpanded ``~``, a name or a path longer than
-    the file system holds), as the end of a one-sentence error; None when it can."""
+    the file system holds, or none at all), as the end of a one-sentence error; None when it
+    can."""
+    if not value.strip():
+        return "it names no folder (Hydra's folders would go to /hydra); give a folder"
     if value.startswith("~"):
         user = value[1:].split("/", 1)[0]
         if user and os.path.expanduser(f"~{user}") == f"~{user}":
@@ -85,16 +88,20 @@ def path_problem(value: str) -> str | None:
 
 
 def check_paths(cfg: Any) -> None:
-    """Every `PATH_KEYS` value that is set and local can be a folder (`path_problem`)."""
+    """Every `PATH_KEYS` value that is set and local can be a folder (`path_problem`); an empty
+    ``report.out_dir`` or ``tracking.artifact_root`` is unset (the default folder), an empty
+    ``tracking.runs_dir`` is refused."""
     from omegaconf import OmegaConf
 
     for key in PATH_KEYS:
         value = OmegaConf.select(cfg, key, default=None)
         if value is None or urlsplit(str(value)).scheme not in ("", "file"):
             continue
+        if value == "" and key != "tracking.runs_dir":
+            continue
         text = str(value)
         if text.startswith("file:"):
             text = urlsplit(text).path
         problem = path_problem(text)
         if problem:
-            raise ConfigError(f"{key}={value} is not allowed: {problem}.")
+            raise ConfigError(f"{key}={value or repr(value)} is not allowed: {problem}.")
