@@ -25,6 +25,8 @@ from pathlib import Path
 from urllib.parse import urlsplit
 from urllib.request import url2pathname
 
+from armexp.config import ConfigError
+
 #: The experiment tag that says whether its artifact location follows the store.
 ANCHOR_TAG = "armexp.artifact_root"
 #: Values of `ANCHOR_TAG`: in the store's own ``artifacts`` folder, or where the user chose.
@@ -80,6 +82,21 @@ def classify(con: sqlite3.Connection, experiment_id: int, location: str, db: Pat
     if any((path / run).is_dir() for run in runs):
         return GIVEN
     return STORE if (path.parent / db.name).exists() or not path.exists() else GIVEN
+
+
+def check_artifact_root(given: str | None, experiment: str, location: str) -> None:
+    """MLflow fixes an experiment's artifact location when it creates it: a different
+    ``tracking.artifact_root`` for the existing ``experiment`` would be recorded in its params
+    but not used, so it is refused (`ConfigError`)."""
+    from mlflow.utils.uri import resolve_uri_if_local
+
+    if not given or resolve_uri_if_local(str(given)).rstrip("/") == location.rstrip("/"):
+        return
+    raise ConfigError(
+        f"tracking.artifact_root={given} is not allowed: experiment '{experiment}' of this store "
+        f"already keeps its artifacts in {location}, and an experiment's artifact location "
+        "cannot change; drop the override, or give a new tracking.experiment for it."
+    )
 
 
 def anchor_artifacts(db: Path) -> list[str]:

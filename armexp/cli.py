@@ -262,7 +262,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         except Exception as exc:
             if not disk.is_full(exc):
                 raise
-            print(f"armexp {stage}: {disk_full_sentence(exc)}", file=sys.stderr)
+            print(f"armexp {stage}: {disk.sentence(exc)}", file=sys.stderr)
             raise SystemExit(1) from None
 
     register_schemas()
@@ -309,26 +309,6 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         if sweep is not None:
             sweeps.close_sweep(sweep, status)
     return 0
-
-
-def disk_full_sentence(exc: BaseException) -> str:
-    """The one sentence for a stage stopped by a full disk (`armexp.disk`)."""
-    from armexp import disk
-
-    found = next((e for e in disk.chain(exc) if isinstance(e, disk.DiskFull)), None)
-    if found is None:
-        return f"{disk.reason(exc)} and no run was started; free space and run again."
-    if found.marked:
-        what = (
-            f"run {found.run_id} is marked FAILED with what it logged before, and no file was "
-            "left half-written"
-        )
-    else:
-        what = (
-            f"run {found.run_id} could not be marked FAILED (its store is on the full disk), so "
-            "the next armexp command will"
-        )
-    return f"{found.detail}; {what}; free space and run again."
 
 
 def _terminate_as_interrupt() -> None:

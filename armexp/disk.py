@@ -5,7 +5,9 @@ artifact store does so for each file armexp logs; `armexp.tracking.log_folder` l
 by file), so a write that fails leaves the previous file or none. A SQLite store keeps
 `RESERVE_BYTES` of room beside its database (`keep_reserve`); when a run fails on a full disk,
 that room is given back first (`release_reserve`) so the error and the FAILED status can still be
-written. Nothing here knows about stages (`armexp.tracking` does).
+written (`armexp.tracking.stage_run` raises `DiskFull` once it has), and the command line prints
+one sentence (`sentence`). A disk with less than `MIN_FREE_BYTES` left is refused before a stage
+starts (`armexp.cli`).
 """
 
 from __future__ import annotations
@@ -75,6 +77,25 @@ def reason(exc: BaseException) -> str:
             where = f": {e.filename}" if e.filename else ""
             return f"{_MEANING[e.errno]} ({e.strerror}{where})"
     return "the disk is full (the MLflow store: database or disk is full)"
+
+
+def sentence(exc: BaseException) -> str:
+    """What the command line says when ``exc`` (`is_full`) stopped a stage: which run it
+    stopped and whether that run is marked FAILED, or that none was started."""
+    found = next((e for e in chain(exc) if isinstance(e, DiskFull)), None)
+    if found is None:
+        return f"{reason(exc)} and no run was started; free space and run again."
+    if found.marked:
+        what = (
+            f"run {found.run_id} is marked FAILED with what it logged before, and no file was "
+            "left half-written"
+        )
+    else:
+        what = (
+            f"run {found.run_id} could not be marked FAILED (its store is on the full disk), so "
+            "the next armexp command will"
+        )
+    return f"{found.detail}; {what}; free space and run again."
 
 
 def free_bytes(folder: Path) -> int:

@@ -135,7 +135,7 @@ def setup(cfg: DictConfig) -> str:
     def get_or_create() -> str:
         exp = client.get_experiment_by_name(name)
         if exp is not None:
-            _check_artifact_root(cfg, exp.artifact_location)
+            anchor.check_artifact_root(cfg.tracking.artifact_root, name, exp.artifact_location)
             if KIND_TAG not in exp.tags:  # made by an older armexp or by hand; a user's kind stays
                 client.set_experiment_tag(exp.experiment_id, KIND_TAG, KIND)
             return str(exp.experiment_id)
@@ -153,21 +153,6 @@ def setup(cfg: DictConfig) -> str:
     experiment_id = retry(get_or_create)
     close_orphans(client, experiment_id)
     return experiment_id
-
-
-def _check_artifact_root(cfg: DictConfig, location: str) -> None:
-    """MLflow fixes an experiment's artifact location when it creates it: a different
-    ``tracking.artifact_root`` for an existing experiment would be recorded but not used."""
-    from mlflow.utils.uri import resolve_uri_if_local
-
-    given = cfg.tracking.artifact_root
-    if not given or resolve_uri_if_local(str(given)).rstrip("/") == location.rstrip("/"):
-        return
-    raise ConfigError(
-        f"tracking.artifact_root={given} is not allowed: experiment '{cfg.tracking.experiment}' "
-        f"of this store already keeps its artifacts in {location}, and an experiment's artifact "
-        "location cannot change; drop the override, or give a new tracking.experiment for it."
-    )
 
 
 def flatten(cfg: DictConfig | Mapping[str, Any]) -> dict[str, str]:
