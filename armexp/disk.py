@@ -37,6 +37,9 @@ class DiskFull(RuntimeError):
         super().__init__(detail)
         self.detail, self.run_id, self.marked = detail, run_id, marked
 
+    def __reduce__(self) -> tuple[type[DiskFull], tuple[str, str, bool]]:
+        return DiskFull, (self.detail, self.run_id, self.marked)
+
 
 def chain(exc: BaseException | None) -> list[BaseException]:
     """``exc`` and the exceptions it was raised from or while handling, each once."""

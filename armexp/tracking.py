@@ -318,7 +318,10 @@ def stage_run(
             _end_run(run.info.run_id, "FINISHED")
             raise
         if disk.is_full(exc):
-            raise _fail_on_full_disk(cfg, run.info.run_id, exc) from exc
+            stopped = _fail_on_full_disk(cfg, run.info.run_id, exc)
+            if stopped is exc:  # a nested stage's, already naming its run
+                raise
+            raise stopped from exc
         _note_error(f"{type(exc).__name__}: {exc}"[:5000])
         _end_run(run.info.run_id, "FAILED")
         raise

@@ -199,3 +199,27 @@ def test_a_disk_with_no_room_to_start_is_one_sentence(tmp_path: Path) -> None:
     runs = folder.parent / "disk" / "runs"
     assert f"tracking.runs_dir={runs} is not allowed now: its disk is full (" in err[0]
     assert len(runs_of(folder / "runs", "simulate")) == 1  # the one made before the disk filled
+
+
+def test_a_nested_stage_stopped_by_a_full_disk_fails_its_parent_too(tmp_path: Path) -> None:
+    """A pipeline's step: the step's run is the one named, and both runs end FAILED."""
+    import errno
+
+    from armexp import disk, tracking
+    from armexp.config import compose_config
+
+    cfg = compose_config([f"tracking.runs_dir={tmp_path / 'runs'}"])
+    with (
+        pytest.raises(disk.DiskFull) as stopped,
+        tracking.stage_run(cfg, "pipeline") as outer,
+        tracking.parent(outer.info.run_id),
+        tracking.stage_run(cfg, "train") as child,
+    ):
+        raise OSError(errno.ENOSPC, "No space left on device", "model/model.zip")
+    assert stopped.value.run_id == child.info.run_id and stopped.value.marked
+    assert disk.sentence(stopped.value).startswith(
+        "the disk is full (No space left on device: model/model.zip); run "
+        f"{child.info.run_id} is marked FAILED"
+    )
+    statuses = {r[0]: r[1] for s in ("pipeline", "train") for r in runs_of(tmp_path / "runs", s)}
+    assert statuses == {outer.info.run_id: "FAILED", child.info.run_id: "FAILED"}
