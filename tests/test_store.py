@@ -213,8 +213,9 @@ def test_a_changed_artifact_root_on_an_existing_store_is_one_sentence(
     assert len(stage_runs(runs, "simulate")) == 1 and not other.exists()
 
 
+@pytest.mark.parametrize("value", ["~/x", "'~/x'"])  # as the shell passes it, Hydra-quoted
 def test_a_tilde_runs_dir_is_the_home_folder(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, value: str
 ) -> None:
     home, work = tmp_path / "home", tmp_path / "work"
     home.mkdir()
@@ -222,7 +223,7 @@ def test_a_tilde_runs_dir_is_the_home_folder(
     monkeypatch.setenv("HOME", str(home))
     monkeypatch.chdir(work)
     fresh()
-    assert main([*SIM, "tracking.runs_dir=~/x"]) == 0
+    assert main([*SIM, f"tracking.runs_dir={value}"]) == 0
     assert (home / "x" / "mlflow.db").is_file() and (home / "x" / "hydra").is_dir()
     assert list(work.iterdir()) == []
 
