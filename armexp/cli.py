@@ -195,21 +195,26 @@ def precheck(
 
 
 def _writable(cfg: Any) -> None:
-    """The runs folder (Hydra's job folders and the default store go there) can be made, and
-    its disk has room to start (`armexp.disk.MIN_FREE_BYTES`)."""
+    """The runs folder (Hydra's job folders and the default store go there) can be made, the
+    default store's artifacts folder in it written, and its disk has room to start
+    (`armexp.disk.MIN_FREE_BYTES`)."""
     from armexp import disk
     from armexp.config import ConfigError
 
     folder = Path(str(cfg.tracking.runs_dir)).resolve()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as exc:
-        raise ConfigError(
-            f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write there "
-            f"({exc.strerror}); give a folder you can write to."
-        ) from None
+    for place in (folder, folder / "artifacts"):
+        try:
+            if place == folder:
+                folder.mkdir(parents=True, exist_ok=True)
+            if place.is_dir():
+                with tempfile.TemporaryFile(dir=place):
+                    pass
+        except OSError as exc:
+            where = "there" if place == folder else f"in {place}"
+            raise ConfigError(
+                f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write "
+                f"{where} ({exc.strerror}); give a folder you can write to."
+            ) from None
     free = disk.free_bytes(folder)
     if free < disk.MIN_FREE_BYTES:
         raise ConfigError(

@@ -379,3 +379,18 @@ def test_a_store_busy_for_a_while_is_waited_for(
         release.set()
         writer.join()
     assert len(stage_runs(runs, "simulate")) == 2
+
+
+def test_an_artifacts_folder_that_cannot_be_written_is_one_sentence(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    simulate(runs)
+    (runs / "artifacts").chmod(0o555)
+    try:
+        command = [sys.executable, "-m", "armexp", *SIM, f"tracking.runs_dir={runs}"]
+        done = subprocess.run(_as_reader(command), capture_output=True, text=True, timeout=300)
+    finally:
+        (runs / "artifacts").chmod(0o755)
+    err = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(err) == 1, done.stderr[-2000:]
+    assert f"armexp cannot write in {runs / 'artifacts'} (Permission denied)" in err[0]
+    assert len(stage_runs(runs, "simulate")) == 1
