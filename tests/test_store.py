@@ -394,3 +394,28 @@ def test_an_artifacts_folder_that_cannot_be_written_is_one_sentence(tmp_path: Pa
     assert done.returncode == 2 and len(err) == 1, done.stderr[-2000:]
     assert f"armexp cannot write in {runs / 'artifacts'} (Permission denied)" in err[0]
     assert len(stage_runs(runs, "simulate")) == 1
+
+
+def test_an_old_experiment_without_runs_is_classified_by_its_location(tmp_path: Path) -> None:
+    """No run folder says where its artifacts are: another store's folder, or one that is gone,
+    was armexp's default; an existing folder of another name or kind is the user's."""
+    other = tmp_path / "other" / "runs"
+    (other / "artifacts").mkdir(parents=True)
+    (other / "mlflow.db").touch()
+    mine = tmp_path / "mine" / "artifacts"
+    mine.mkdir(parents=True)
+    db = tmp_path / "here" / "runs" / "mlflow.db"
+    db.parent.mkdir(parents=True)
+    client = MlflowClient(f"sqlite:///{db}")
+    cases = {
+        (other / "artifacts").as_uri(): anchor.STORE,
+        (tmp_path / "gone" / "runs" / "artifacts").as_uri(): anchor.STORE,
+        mine.as_uri(): anchor.GIVEN,
+        (tmp_path / "mine").as_uri(): anchor.GIVEN,
+        "s3://bucket/artifacts": anchor.GIVEN,
+        (db.parent / "artifacts").as_uri(): anchor.STORE,
+    }
+    ids = {loc: int(client.create_experiment(f"e{i}", loc)) for i, loc in enumerate(cases)}
+    with sqlite3.connect(db) as con:
+        got = {loc: anchor.classify(con, i, loc, db) for loc, i in ids.items()}
+    assert got == cases
