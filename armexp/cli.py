@@ -10,8 +10,8 @@ traceback.
 from __future__ import annotations
 
 import contextlib
-import errno
 import importlib
+import logging
 import os
 import sys
 import tempfile
@@ -175,45 +175,68 @@ def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     return overrides
 
 
-def precheck(overrides: Sequence[str], multirun: bool, search_path: Sequence[str] = ()) -> None:
+def precheck(
+    overrides: Sequence[str], multirun: bool, search_path: Sequence[str] = (), writes: bool = True
+) -> None:
     """Compose and validate the run's config, or every job's of a sweep (tens of milliseconds
-    a job, small beside the job itself), before Hydra starts any."""
+    a job, small beside the job itself), before Hydra starts any; ``writes``: the command will
+    write to the runs folder (``--cfg job`` only prints)."""
     from armexp.config import compose_config
 
     if not multirun:
-        _writable(compose_config([*search_path, *overrides]))
-        return
-    from armexp.sweeps import sweep_combinations
+        cfg = compose_config([*search_path, *overrides])
+    else:
+        from armexp.sweeps import sweep_combinations
 
-    for job in sweep_combinations(overrides):
-        cfg = compose_config([*search_path, *job])
-    _writable(cfg)
+        for job in sweep_combinations(overrides):
+            cfg = compose_config([*search_path, *job])
+    if writes:
+        _writable(cfg)
 
 
 def _writable(cfg: Any) -> None:
-    """The runs folder (Hydra's job folders and the default store go there) can be made."""
+    """The runs folder (Hydra's job folders and the default store go there) can be made, the
+    default store's artifacts folder in it written, and its disk has room to start
+    (`armexp.disk.MIN_FREE_BYTES`)."""
+    from armexp import disk
     from armexp.config import ConfigError
 
     folder = Path(str(cfg.tracking.runs_dir)).resolve()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as exc:
+    for place in (folder, folder / "artifacts"):
+        try:
+            if place == folder:
+                folder.mkdir(parents=True, exist_ok=True)
+            if place.is_dir():
+                with tempfile.TemporaryFile(dir=place):
+                    pass
+        except OSError as exc:
+            where = "there" if place == folder else f"in {place}"
+            raise ConfigError(
+                f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write "
+                f"{where} ({exc.strerror}); give a folder you can write to."
+            ) from None
+    free = disk.free_bytes(folder)
+    if free < disk.MIN_FREE_BYTES:
         raise ConfigError(
-            f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write there "
-            f"({exc.strerror}); give a folder you can write to."
-        ) from None
+            f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed now: its disk is full "
+            f"({free // 1024} KB free); free space and run again."
+        )
 
 
 def run_stage(stage: str, args: Sequence[str]) -> int:
-    from armexp.config import ConfigError, config_dir, normalize_overrides, register_schemas
+    from armexp.config import (
+        ConfigError,
+        config_dir,
+        expand_home,
+        normalize_overrides,
+        register_schemas,
+    )
 
     try:
-        line = split_args(args)
+        line = split_args([expand_home(a) for a in args])
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
         if not line.runs_no_job:
-            precheck(overrides, line.multirun, _search_path(line))
+            precheck(overrides, line.multirun, _search_path(line), not line.shows_config)
             if line.multirun and not line.shows_config:
                 from armexp.launchers import check_launcher
 
@@ -225,7 +248,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     import hydra
 
-    from armexp import sweeps
+    from armexp import disk, sweeps
 
     def job(cfg: Any) -> Any:
         from armexp.config import validate as check
@@ -241,14 +264,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         except ConfigError as exc:  # e.g. a missing upstream run found only at run time
             print(f"armexp {stage}: {exc}", file=sys.stderr)
             raise SystemExit(EXIT_USAGE) from None
-        except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+        except Exception as exc:
+            if not disk.is_full(exc):
                 raise
-            print(
-                f"armexp {stage}: the disk is full ({exc.strerror}: {exc.filename or 'a write'}); "
-                "the run is marked FAILED with what it logged before; free space and run again.",
-                file=sys.stderr,
-            )
+            print(f"armexp {stage}: {disk.sentence(exc)}", file=sys.stderr)
             raise SystemExit(1) from None
 
     register_schemas()
@@ -314,6 +333,8 @@ def _terminate_as_interrupt() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("HYDRA_FULL_ERROR", "0")
+    # A log file that cannot be written (a full disk) must not print a traceback per record.
+    logging.raiseExceptions = False
     quiet_warnings()
     if not args or args[0] in ("-h", "--help", "help"):
         print(usage())

@@ -63,10 +63,20 @@ def diff_lines(ra: Run, rb: Run) -> list[str]:
 
 
 def main(args: Sequence[str]) -> int:
-    """Print the differences of two runs; a bad argument is one sentence and exit code 2."""
-    ids = [a for a in args if "=" not in a]
-    overrides = [a for a in args if "=" in a]
+    """Print the differences of two runs; a bad argument is one sentence and exit code 2. It
+    only reads: a store that does not exist is not created, and a read-only one is read."""
+    if any(a in ("-h", "--help") for a in args):
+        print(USAGE)
+        return 0
+    ids = [a for a in args if "=" not in a and not a.startswith("-")]
+    overrides = [a for a in args if "=" in a and not a.startswith("-")]
+    flags = [a for a in args if a.startswith("-")]
     try:
+        if flags:
+            raise ConfigError(
+                f"{flags[0].partition('=')[0]} is not an option of armexp diff, which takes two "
+                f"run ids and tracking overrides only; {USAGE}."
+            )
         if len(ids) != 2:
             raise ConfigError(
                 f"armexp diff takes exactly two run ids and got {len(ids)} ({' '.join(ids)}); "
@@ -78,7 +88,7 @@ def main(args: Sequence[str]) -> int:
         from armexp import tracking
         from armexp.config import compose_config
 
-        uri = tracking.store_uri(compose_config(overrides))
+        uri = tracking.store_uri(compose_config(overrides), reading=True)
         client = MlflowClient(uri)
         runs = []
         for run_id in ids:

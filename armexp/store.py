@@ -1,5 +1,6 @@
-"""Opening a tracking store safely: a SQLite store created and migrated under a lock, and
-followed when its folder was moved; a tracking server asked once whether it answers; passwords
+"""Opening a tracking store safely: a SQLite store created and migrated under a lock, waited
+for while another process writes to it, its artifact locations following its folder when it was
+copied or moved (`armexp.anchor`); a tracking server asked once whether it answers; passwords
 in a tracking URI kept out of everything armexp logs, prints or writes.
 
 Nothing here knows about stages or runs (`armexp.tracking` does).
@@ -7,17 +8,19 @@ Nothing here knows about stages or runs (`armexp.tracking` does).
 
 from __future__ import annotations
 
-import contextlib
 import fcntl
 import os
 import sys
+import time
 import urllib.error
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 from urllib.parse import unquote, urlsplit, urlunsplit
 
 from mlflow.tracking import MlflowClient
 
+from armexp import anchor, disk
 from armexp.config import ConfigError
 
 #: What a hidden password is shown as; `armexp.tracking.store_uri` restores it from
@@ -26,19 +29,28 @@ HIDDEN = "***"
 SECRET_URI_ENV = "ARMEXP_TRACKING_URI"
 #: Seconds to wait for a tracking server's first answer.
 PROBE_S = 10.0
+#: How long to wait for a store that another process holds locked, and how often to try it.
+BUSY_WAIT_S, BUSY_POLL_S = 60.0, 1.0
 #: Stores this process has opened (a SQLite store created or migrated, a server that answered).
 _opened: set[str] = set()
 
 
-def open_once(uri: str) -> None:
+def open_once(uri: str, reading: bool = False) -> None:
     """The first use of ``uri`` in this process: open a SQLite store under its lock, or ask a
-    server whether it answers; nothing for other stores or later uses."""
+    server whether it answers; nothing for other stores or later uses. ``reading``: for a
+    command that only reads (`armexp.diff`), a SQLite store must exist and may be read-only."""
     if uri in _opened:
         return
     if uri.startswith("sqlite:///"):
-        _open_sqlite(uri)
+        _open_sqlite(uri, reading)
     elif uri.startswith(("http://", "https://")):
         _probe_server(uri)
+
+
+def is_locked(exc: BaseException) -> bool:
+    """Whether ``exc`` is SQLite reporting a locked store (MLflow wraps sqlite3/SQLAlchemy
+    errors in several types, so the message decides)."""
+    return "locked" in str(exc).lower()
 
 
 def hide_password(uri: str) -> str:
@@ -68,40 +80,6 @@ def keep_credentials_out(uri: str) -> str:
     return hide_password(uri)
 
 
-def _follow_move(db: Path) -> None:
-    """A store whose folder was moved (``mv proj proj2``) still names its artifacts by the old
-    absolute path; when that path's store is gone, its artifact locations are moved to the
-    ``artifacts`` folder beside ``db``, where they now are."""
-    import sqlite3
-
-    here = f"file://{db.parent / 'artifacts'}"
-    with contextlib.closing(sqlite3.connect(db)) as con:
-        locations = [r[0] for r in con.execute("SELECT artifact_location FROM experiments")]
-        for location in locations:
-            if not location.startswith("file://") or location.rstrip("/") == here:
-                continue
-            old = Path(location[len("file://") :].rstrip("/"))
-            if old.name != "artifacts" or (old.parent / db.name).exists():
-                continue  # a location of the user's choosing, or its store is still there
-            prefix = f"file://{old}"
-            with con:
-                con.execute(
-                    "UPDATE experiments SET artifact_location = ? || substr(artifact_location, ?)"
-                    " WHERE artifact_location LIKE ? || '%'",
-                    (here, len(prefix) + 1, prefix),
-                )
-                con.execute(
-                    "UPDATE runs SET artifact_uri = ? || substr(artifact_uri, ?)"
-                    " WHERE artifact_uri LIKE ? || '%'",
-                    (here, len(prefix) + 1, prefix),
-                )
-            print(
-                f"armexp: the store {db} was moved from {old.parent}; its artifact paths now "
-                f"point into {db.parent / 'artifacts'}",
-                file=sys.stderr,
-            )
-
-
 def _probe_server(uri: str) -> None:
     """Ask the server's ``/health`` once per process, so an address with no server behind it
     is one sentence now instead of MLflow's minutes of retries."""
@@ -118,11 +96,22 @@ def _probe_server(uri: str) -> None:
     _opened.add(uri)
 
 
-def _open_sqlite(uri: str) -> None:
+def _open_sqlite(uri: str, reading: bool) -> None:
     """Open the SQLite store once with an exclusive lock on ``<db>.lock``: MLflow creates and
     migrates a new store's schema on first open, and processes doing that at the same time
-    fail or leave it half-migrated."""
-    db = Path(uri[len("sqlite:///") :])
+    fail or leave it half-migrated. Under the lock its artifact locations follow the folder it
+    is in now (`armexp.anchor`) and its reserve is kept (`armexp.disk`). ``reading``: a command
+    that only reads, for which the store must exist and may be read-only."""
+    db = Path(uri[len("sqlite:///") :]).resolve()
+    if reading and not db.is_file():
+        raise ConfigError(
+            f"tracking.runs_dir={db.parent} is not allowed here: it holds no MLflow store (no "
+            f"{db.name}); give the tracking.runs_dir of a store that holds your runs."
+        )
+    if reading and not (os.access(db, os.W_OK) and os.access(db.parent, os.W_OK)):
+        _open_waiting(db, uri, lambda: None)
+        _opened.add(uri)
+        return
     try:
         db.parent.mkdir(parents=True, exist_ok=True)
         lock = open(db.with_name(db.name + ".lock"), "a")  # noqa: SIM115 (the with below)
@@ -134,15 +123,52 @@ def _open_sqlite(uri: str) -> None:
     with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
-            MlflowClient(uri).search_experiments(max_results=1)
-            _follow_move(db)
-        except Exception as exc:
-            reason = str(exc).splitlines()[0][:200]
-            raise ConfigError(
-                f"tracking.runs_dir={db.parent} is not allowed: its MLflow store {db.name} cannot "
-                f"be opened ({type(exc).__name__}: {reason}); move it aside to start a new "
-                "store, or restore it from a backup."
-            ) from None
+            _open_waiting(db, uri, lambda: _settle(db))
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
     _opened.add(uri)
+
+
+def _settle(db: Path) -> None:
+    """What an opened, writable store gets: locations that follow it, and its reserve."""
+    for note in anchor.anchor_artifacts(db):
+        print(f"armexp: {note}", file=sys.stderr)
+    disk.keep_reserve(db)
+
+
+def _open_waiting(db: Path, uri: str, then: Callable[[], None]) -> None:
+    """Open the store (MLflow creates or migrates its schema) and run ``then``, waiting up to
+    `BUSY_WAIT_S` while another process holds the database locked; a store that cannot be
+    opened, or stays locked, is one sentence (`ConfigError`)."""
+    deadline = time.monotonic() + BUSY_WAIT_S
+    told = False
+    while True:
+        try:
+            MlflowClient(uri).search_experiments(max_results=1)
+            then()
+            return
+        except Exception as exc:
+            if not is_locked(exc):
+                if isinstance(exc, OSError):
+                    raise
+                reason = str(exc).splitlines()[0][:200]
+                raise ConfigError(
+                    f"tracking.runs_dir={db.parent} is not allowed: its MLflow store {db.name} "
+                    f"cannot be opened ({type(exc).__name__}: {reason}); move it aside to start "
+                    "a new store, or restore it from a backup."
+                ) from None
+            if time.monotonic() >= deadline:
+                raise ConfigError(
+                    f"tracking.runs_dir={db.parent} is not allowed now: its MLflow store "
+                    f"{db.name} is busy, locked by another process writing to it for over "
+                    f"{BUSY_WAIT_S:.0f} s (it is not damaged); run again when that process is "
+                    "done, or stop it."
+                ) from None
+        if not told:
+            print(
+                f"armexp: the store {db} is busy (another process is writing to it); waiting "
+                f"up to {BUSY_WAIT_S:.0f} s",
+                file=sys.stderr,
+            )
+            told = True
+        time.sleep(BUSY_POLL_S)

@@ -34,7 +34,7 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
-from armexp import lineage, liveness, run_names, store
+from armexp import anchor, disk, lineage, liveness, run_names, store
 from armexp.config import ConfigError
 from armexp.reads import Reads
 
@@ -52,13 +52,15 @@ MAX_PARAM_LENGTH = 6000
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
-for _noisy in ("alembic", "mlflow.store.db.utils"):
-    logging.getLogger(_noisy).setLevel(logging.WARNING)
+logging.getLogger("alembic").setLevel(logging.WARNING)
+# MLflow logs each database error it then raises (a lock, a full disk); armexp reports the error.
+logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
 
 
-def store_uri(cfg: DictConfig) -> str:
+def store_uri(cfg: DictConfig, reading: bool = False) -> str:
     """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``; a
-    SQLite store is created (or migrated) under a lock the first time this process uses it."""
+    SQLite store is created (or migrated) under a lock the first time this process uses it.
+    ``reading``: for a command that only reads, which creates nothing (`store.open_once`)."""
     if cfg.tracking.uri:
         uri = str(cfg.tracking.uri)
         if f":{store.HIDDEN}@" in uri:
@@ -72,25 +74,26 @@ def store_uri(cfg: DictConfig) -> str:
             uri = real
     else:
         runs = Path(cfg.tracking.runs_dir).resolve()
-        runs.mkdir(parents=True, exist_ok=True)
+        if not reading:
+            runs.mkdir(parents=True, exist_ok=True)
         uri = f"sqlite:///{runs / 'mlflow.db'}"
-    store.open_once(uri)
+    store.open_once(uri, reading)
     return uri
 
 
 def artifact_root(cfg: DictConfig) -> str | None:
-    """Where a new experiment stores artifacts (None: the server decides)."""
+    """Where a new experiment stores artifacts (None: the server decides): a SQLite store's
+    ``artifacts`` folder beside its database unless ``tracking.artifact_root`` says otherwise."""
     if cfg.tracking.artifact_root:
         return str(cfg.tracking.artifact_root)
-    if cfg.tracking.uri and not str(cfg.tracking.uri).startswith("sqlite"):
+    uri = str(cfg.tracking.uri or "")
+    if uri and not uri.startswith("sqlite:///"):
         return None
-    return (Path(cfg.tracking.runs_dir).resolve() / "artifacts").as_uri()
+    db = Path(uri[len("sqlite:///") :]) if uri else Path(cfg.tracking.runs_dir) / "mlflow.db"
+    return anchor.store_artifacts(db.resolve()).as_uri()
 
 
-def is_lock(exc: BaseException) -> bool:
-    """Whether ``exc`` is SQLite reporting a locked store (MLflow wraps sqlite3/SQLAlchemy
-    errors in several types, so the message decides)."""
-    return "locked" in str(exc).lower()
+is_lock = store.is_locked
 
 
 def retry(fn: Callable[[], T], attempts: int = 8, delay: float = 0.25) -> T:
@@ -112,17 +115,20 @@ def setup(cfg: DictConfig) -> str:
     client = MlflowClient(uri)
     name = str(cfg.tracking.experiment)
 
+    tags = {KIND_TAG: KIND}
+    if uri.startswith("sqlite:"):  # whether its artifacts follow the store (`armexp.anchor`)
+        tags[anchor.ANCHOR_TAG] = anchor.GIVEN if cfg.tracking.artifact_root else anchor.STORE
+
     def get_or_create() -> str:
         exp = client.get_experiment_by_name(name)
         if exp is not None:
+            anchor.check_artifact_root(cfg.tracking.artifact_root, name, exp.artifact_location)
             if KIND_TAG not in exp.tags:  # made by an older armexp or by hand; a user's kind stays
                 client.set_experiment_tag(exp.experiment_id, KIND_TAG, KIND)
             return str(exp.experiment_id)
         try:
             return str(
-                client.create_experiment(
-                    name, artifact_location=artifact_root(cfg), tags={KIND_TAG: KIND}
-                )
+                client.create_experiment(name, artifact_location=artifact_root(cfg), tags=tags)
             )
         except MlflowException:
             # Another job created it between our look-up and create.
@@ -281,11 +287,35 @@ def stage_run(
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             _end_run(run.info.run_id, "FINISHED")
             raise
+        if disk.is_full(exc):
+            stopped = _fail_on_full_disk(cfg, run.info.run_id, exc)
+            if stopped is exc:  # a nested stage's, already naming its run
+                raise
+            raise stopped from exc
         _note_error(f"{type(exc).__name__}: {exc}"[:5000])
         _end_run(run.info.run_id, "FAILED")
         raise
     else:
         _end_run(run.info.run_id, "FINISHED")
+
+
+def _fail_on_full_disk(cfg: DictConfig, run_id: str, exc: BaseException) -> disk.DiskFull:
+    """Mark the run FAILED after a write found its disk full, with the store's reserve freed
+    first (`armexp.disk`) so there is room for it; the `DiskFull` to raise says whether that
+    worked. A nested stage's `DiskFull` names its own run and passes on."""
+    disk.release_reserve(store_uri(cfg))
+    marked = True
+    try:
+        retry(lambda: mlflow.set_tag(ERROR_TAG, f"{type(exc).__name__}: {exc}"[:5000]))
+    except Exception:
+        marked = False
+    try:
+        _end_run(run_id, "FAILED")
+    except Exception:
+        marked = False
+    if isinstance(exc, disk.DiskFull):
+        return exc
+    return disk.DiskFull(disk.reason(exc), run_id, marked)
 
 
 def _note_error(message: str) -> None:
@@ -307,6 +337,17 @@ def _end_run(run_id: str, status: str) -> None:
         if not is_lock(exc):
             raise
         retry(lambda: MlflowClient().set_terminated(run_id, status))
+
+
+def log_folder(local_dir: str | Path, artifact_path: str | None = None) -> None:
+    """Log every file under ``local_dir`` as artifacts under ``artifact_path``, one at a time in
+    sorted order: each is written under a temporary name and renamed when complete (MLflow's
+    ``log_artifacts`` copies a folder in place, so a failed write leaves a cut-off file)."""
+    root = Path(local_dir)
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        parent = path.parent.relative_to(root).as_posix()
+        folder = "/".join(x for x in (artifact_path, "" if parent == "." else parent) if x)
+        retry(lambda p=path, f=folder: mlflow.log_artifact(str(p), f or None))  # type: ignore[misc]
 
 
 def log_dataframe(df: Any, name: str, folder: str | None = None) -> None:

@@ -10,7 +10,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import mlflow
 import numpy as np
 from mlflow.entities import Metric
 from mlflow.tracking import MlflowClient
@@ -19,7 +18,7 @@ from stable_baselines3.common.logger import KVWriter
 
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.console import progress_bar
-from armexp.tracking import log_batch, retry
+from armexp.tracking import log_batch, log_folder
 
 #: Artifact paths of a train run.
 CHECKPOINT_DIR = "checkpoint"
@@ -144,10 +143,14 @@ class Checkpoint(BaseCallback):
 
 
 def log_model(model: Any, folder: str, state: dict[str, Any]) -> None:
+    """The model and its state file as the artifacts ``folder/`` (`MODEL_FILE`, `STATE_FILE`),
+    each written under a temporary name and renamed when complete (`log_folder`): the model
+    first, so a write that fails leaves the previous pair (or none) rather than a new state
+    beside an old model or a cut-off model."""
     with tempfile.TemporaryDirectory() as tmp:
         model.save(str(Path(tmp) / MODEL_FILE))
         (Path(tmp) / STATE_FILE).write_text(json.dumps(state, indent=1))
-        retry(lambda: mlflow.log_artifacts(tmp, folder))
+        log_folder(tmp, folder)
 
 
 class Progress(BaseCallback):

@@ -26,9 +26,11 @@ from omegaconf.errors import OmegaConfBaseException
 
 from armexp.config.checks import Check, ConfigError, fail
 from armexp.config.errors import translate_error
+from armexp.config.paths import check_paths, expand_home
 from armexp.config.schema import SCHEMAS, ArmexpConfig
 
-__all__ = ["ConfigError", "compose_config", "config_dir", "register_schemas", "validate"]
+__all__ = ["ConfigError", "compose_config", "config_dir", "expand_home", "register_schemas",
+           "validate"]  # fmt: skip
 
 
 def config_dir() -> Path:
@@ -84,10 +86,11 @@ USER_KEYED = ("eval.tune_runs", "play.tune_runs")
 
 
 def normalize_overrides(overrides: Sequence[str]) -> list[str]:
-    """Accept ``a.b=option`` for the nested group ``a/b`` (``controller.gains=paper``), and
-    ``eval.tune_runs.<label>=<id>`` without Hydra's ``++`` (`USER_KEYED`)."""
+    """Accept ``a.b=option`` for the nested group ``a/b`` (``controller.gains=paper``),
+    ``eval.tune_runs.<label>=<id>`` without Hydra's ``++`` (`USER_KEYED`), and ``~`` for the
+    home folder in a folder's key (`armexp.config.paths.expand_home`)."""
     out = []
-    for o in overrides:
+    for o in map(expand_home, overrides):
         key, eq, value = o.partition("=")
         if eq and (key in USER_KEYED or key.startswith(tuple(f"{k}." for k in USER_KEYED))):
             out.append(f"++{o}")
@@ -115,6 +118,7 @@ def group_options(group: str) -> list[str]:
 def validate(cfg: DictConfig) -> None:
     """Check field values against their schema checks, then the cross-field rules."""
     _walk(cfg, "")
+    check_paths(cfg)
     _cross_checks(cfg)
     _workspace_checks(cfg)
     _agent_checks(cfg)

@@ -12,9 +12,6 @@ never imports the simulation, environment or agent code.
 from __future__ import annotations
 
 import math
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import mlflow
@@ -22,18 +19,18 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
-from armexp.config import ConfigError
+from armexp.report import folder
+from armexp.report.folder import MARKER
 from armexp.report.page import build
 from armexp.report.runs import Reader, select
 
 REPORT_RUNS_TAG = "armexp.report_runs"
-#: The file that marks a folder as an armexp report (which a new report may replace).
-MARKER = ".armexp-report"
+__all__ = ["MARKER", "REPORT_RUNS_TAG", "out_dir", "run"]
 
 
 def out_dir(cfg: DictConfig) -> Path:
-    folder = cfg.report.out_dir or str(Path(cfg.tracking.runs_dir) / "report")
-    return Path(folder).resolve()
+    """``report.out_dir``, by default ``<tracking.runs_dir>/report``."""
+    return Path(cfg.report.out_dir or Path(cfg.tracking.runs_dir) / "report").resolve()
 
 
 def run(cfg: DictConfig) -> tracking.StageResult:
@@ -47,58 +44,25 @@ def run(cfg: DictConfig) -> tracking.StageResult:
         filter_string=cfg.report.filter,
     )
     target = out_dir(cfg)
-    _check_out_dir(target)
+    folder.check(target)
     # Built beside the target and swapped in when complete: an interrupted or failed report
     # leaves the previous one as it was.
-    target.parent.mkdir(parents=True, exist_ok=True)
-    folder = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
     reader = Reader(uri)
     try:
-        (folder / "figures").mkdir()
-        (folder / "tables").mkdir()
-        (folder / MARKER).write_text("made by armexp report; the folder is replaced as a whole\n")
-        summary = build(selection, reader, folder, cfg)
-        _swap(folder, target)
+        with folder.building(target) as new:
+            (new / "figures").mkdir()
+            (new / "tables").mkdir()
+            summary = build(selection, reader, new, cfg)
     finally:
         reader.close()
-        shutil.rmtree(folder, ignore_errors=True)
-    folder = target
     ids = ",".join(r.info.run_id for r in selection.evals)
     with tracking.stage_run(
         cfg, "report", run_name=cfg.report.run_name, extra_tags={REPORT_RUNS_TAG: ids[:5000]}
     ) as active:
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
-        tracking.retry(lambda: mlflow.log_artifacts(str(folder), "report"))
+        tracking.log_folder(target, "report")
         print(
             f"report: run {active.info.run_id} | {len(selection.evals)} eval run(s) "
-            f"({selection.how}) | open {folder / 'index.html'}"
+            f"({selection.how}) | open {target / 'index.html'}"
         )
     return tracking.StageResult(active.info.run_id, summary)
-
-
-def _check_out_dir(folder: Path) -> None:
-    """A report replaces its folder as a whole, so it writes only into a new or empty folder or
-    into a previous report's (one holding the `MARKER` file)."""
-    if folder.exists() and not folder.is_dir():
-        raise ConfigError(f"report.out_dir={folder} is not allowed: it is a file, not a folder.")
-    # Reports made before the marker existed are recognised by their layout.
-    earlier = (folder / MARKER).exists() or (
-        (folder / "index.html").is_file() and (folder / "tables").is_dir()
-    )
-    if folder.is_dir() and any(folder.iterdir()) and not earlier:
-        raise ConfigError(
-            f"report.out_dir={folder} is not allowed: the folder holds files that are not an "
-            f"armexp report (no {MARKER} in it) and a report replaces its whole folder; give a "
-            "new or empty folder, or an earlier report's."
-        )
-
-
-def _swap(new: Path, target: Path) -> None:
-    """Put the finished report ``new`` where ``target`` is, removing the previous report."""
-    old = None
-    if target.exists():
-        old = target.with_name(f".{target.name}.old-{os.getpid()}")
-        target.rename(old)
-    new.rename(target)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)

@@ -31,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
-from armexp import console, liveness, tracking
+from armexp import console, disk, liveness, tracking
 from armexp.agents.addons import TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
@@ -264,10 +264,12 @@ def _learn(
             log_interval=4,
             reset_num_timesteps=model_path is None,
         )
-    except BaseException:
-        # Interrupted or failed: keep what was learned so `train.resume` can continue it.
-        stats.flush()
-        checkpoint.save()
+    except BaseException as exc:
+        # Interrupted or failed: keep what was learned so `train.resume` can continue it; on a
+        # full disk the last complete checkpoint stays, as more writes would fail too.
+        if not disk.is_full(exc):
+            stats.flush()
+            checkpoint.save()
         raise
     finally:
         venv.close()
