@@ -183,6 +183,45 @@ class Progress(BaseCallback):
             self.bar.close()
 
 
+class PaceLine(BaseCallback):
+    """Without a progress bar (logs, captured output): a line every ``every_s`` seconds of
+    training with the steps done, the measured pace since this process started and the ETA
+    of the step budget (or of the time budget, when that ends first)."""
+
+    def __init__(
+        self, total: int, stats: EpisodeStats, seconds: float | None, every_s: float = 60.0
+    ) -> None:
+        super().__init__()
+        self.total = total
+        self.stats = stats
+        self.seconds = seconds
+        self.every_s = every_s
+        self.lines: list[str] = []
+
+    def _on_training_start(self) -> None:
+        self.first_step = self.num_timesteps
+        self.first_wall = self.stats.wall()
+        self.next_at = self.first_wall + self.every_s
+
+    def _on_step(self) -> bool:
+        if self.n_calls % 100 == 0 and self.stats.wall() >= self.next_at:
+            self.say(self.stats.wall())
+        return True
+
+    def say(self, wall: float) -> None:
+        self.next_at = wall + self.every_s
+        pace = (self.num_timesteps - self.first_step) / max(wall - self.first_wall, 1e-9)
+        eta = max(self.total - self.num_timesteps, 0) / pace if pace > 0 else float("inf")
+        if self.seconds is not None:
+            eta = min(eta, max(self.seconds - wall, 0.0))
+        line = (
+            f"train: {self.num_timesteps:,} of {self.total:,} steps | {pace:,.0f} steps/s | "
+            f"ETA {eta / 60:.1f} min | success (last 100) {self.stats.success_rate:.2f}"
+        )
+        self.lines.append(line)
+        print(line, flush=True)
+
+
 class Budget(BaseCallback):
     """Stops training after ``episodes`` episodes, ``steps`` environment steps or ``seconds`` of
     wall time, whichever comes first (None: no limit)."""

@@ -42,6 +42,7 @@ from armexp.agents.callbacks import (
     Checkpoint,
     EpisodeStats,
     MLflowOutputFormat,
+    PaceLine,
     Progress,
     log_model,
 )
@@ -256,6 +257,8 @@ def _learn(
         callbacks += addon.setup(context)
     if console.shows_progress(tr.progress):
         callbacks.append(Progress(total, stats, initial=done_steps))
+    else:
+        callbacks.append(PaceLine(total, stats, budget.seconds))
     started = time.perf_counter()
     try:
         model.learn(
