@@ -1,4 +1,4 @@
-"""Training's pace line: the measured steps per second and the ETA of whichever budget ends first."""
+"""Training's pace line: steps per second and the ETA of whichever budget ends first."""
 
 from __future__ import annotations
 
