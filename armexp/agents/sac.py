@@ -13,6 +13,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.analytic import AnalyticUpdate
+from armexp.agents.compiled import CompiledUpdate
 from armexp.config import ConfigError
 
 
@@ -24,9 +25,18 @@ class ActorTerm(Protocol):
         """States (k, d) and actions (k, n) for this update."""
         ...
 
-    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def value(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """The term from the actor's deterministic action ``mode`` (k, n) at the states, the
-        batch's ``actions`` and the critics' (smaller) value of them ``q`` (k,), no gradient."""
+        batch's ``actions`` and the critics' (smaller) value of them ``q`` (k,), no gradient;
+        without side effects (a compiled update traces it)."""
+        ...
+
+    def record(self, loss: float) -> None:
+        """Log one update's `value`."""
+        ...
+
+    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """`value`, recorded (the eager updates)."""
         ...
 
 
@@ -55,14 +65,16 @@ class ResumableSAC(SAC):
     #: Further actor loss terms on states of their own (the cloning aid); see `ActorTerm`.
     actor_terms: list[ActorTerm]
     _analytic: AnalyticUpdate | None
+    _compiled: CompiledUpdate | None
 
     def _setup_model(self) -> None:
         super()._setup_model()
         self.actor_terms = []
         self._analytic = None
+        self._compiled = None
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "actor_terms", "_analytic"]
+        return [*super()._excluded_save_params(), "actor_terms", "_analytic", "_compiled"]
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
@@ -92,6 +104,10 @@ class ResumableSAC(SAC):
             if self._analytic is None:
                 self._analytic = AnalyticUpdate(self)
             logs = self._analytic.train(gradient_steps, batch_size)
+        elif self.gradients == "compiled":
+            if self._compiled is None:  # compiles at its first call
+                self._compiled = CompiledUpdate(self)
+            logs = self._compiled.train(gradient_steps, batch_size)
         else:
             logs = self._autograd_train(gradient_steps, batch_size)
         self._n_updates += gradient_steps
@@ -191,10 +207,11 @@ def _without_argument_checks() -> None:
 
 def _with_gradients(model: ResumableSAC, agent: DictConfig) -> ResumableSAC:
     model.gradients = str(agent.get("gradients", "autograd"))
-    why = AnalyticUpdate.supports(model) if model.gradients == "analytic" else None
+    check = {"analytic": AnalyticUpdate.supports, "compiled": CompiledUpdate.supports}
+    why = check[model.gradients](model) if model.gradients in check else None
     if why is not None:
         raise ConfigError(
-            f"agent.gradients=analytic is not allowed for this agent: {why}; use "
+            f"agent.gradients={model.gradients} is not allowed for this agent: {why}; use "
             "agent.gradients=autograd."
         )
     return model

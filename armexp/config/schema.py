@@ -234,7 +234,7 @@ class AgentConfig:
     )
     #: How the update's gradients are computed: ``autograd`` (SB3's update) or ``analytic``
     #: (the same losses' gradients written out, `armexp.agents.analytic`; MLP policies).
-    gradients: str = checked("autograd", one_of("autograd", "analytic"))
+    gradients: str = checked("autograd", one_of("autograd", "analytic", "compiled"))
     #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
     #: (`armexp.agents.addons`). None for the paper's plain SAC.
     aids: dict[str, Any] = field(default_factory=dict)
