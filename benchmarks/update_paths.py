@@ -52,6 +52,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from torch.func import functional_call, grad_and_value
 
 from armexp.agents.analytic import EPSILON, HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN
+from armexp.agents.compiled import CompiledUpdate
 from armexp.agents.sac import ResumableSAC, build_sac, sac_kwargs
 from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
@@ -219,11 +220,16 @@ def _fill(model: Any, n_envs: int) -> None:
     model.set_logger(configure(None, []))
 
 
-def _torch_paths(agent: DictConfig, env: DummyVecEnv) -> list[Path]:
+def _torch_paths(agent: DictConfig, env: DummyVecEnv, skip: set[str]) -> list[Path]:
     n = int(agent.batch_size)
     paths = []
-    for name in ("sb3", "autograd", "analytic", "eager-func", "compile", "compile-max"):
-        gradients = "analytic" if name == "analytic" else "autograd"
+    k = int(agent.gradient_steps)
+    names = ["sb3", "autograd", "analytic", "eager-func", "compile", "compile-max",
+             "fn-adam", "fn-adam-full"] + ([f"fn-adam-full-x{k}"] if k > 1 else [])  # fmt: skip
+    for name in names:
+        if name in skip:
+            continue
+        gradients = {"analytic": "analytic"}.get(name, "compiled" if "fn-" in name else "autograd")
         agent.gradients = gradients
         if name == "sb3":
             kwargs = sac_kwargs(agent)
@@ -236,6 +242,14 @@ def _torch_paths(agent: DictConfig, env: DummyVecEnv) -> list[Path]:
             mode = {"eager-func": "eager", "compile": None}.get(name, "max-autotune-no-cudagraphs")
             update = TorchUpdate(model, mode)
             paths.append(Path(name, functools.partial(update.train, n), model=update))
+        elif name.startswith("fn-adam"):
+            # `CompiledUpdate` (agent.gradients=compiled): Adam written in the graph; with
+            # fullgraph and static shapes; xK: the preset's K gradient steps in one graph.
+            full = {"fullgraph": True, "dynamic": False} if "full" in name else {}
+            model._compiled = CompiledUpdate(model, **full)
+            steps = k if name.endswith(f"x{k}") and k > 1 else 1
+            paths.append(Path(name, functools.partial(model.train, steps, n), per_call=steps,
+                              model=model))  # fmt: skip
         else:
             paths.append(Path(name, functools.partial(model.train, 1, n), model=model))
 
@@ -304,7 +318,8 @@ def _snapshot(model: ResumableSAC) -> tuple[list[torch.Tensor], list[torch.Tenso
 
 def _check(paths: list[Path], n: int) -> None:
     """The same steps on the same batches and noise: largest differences from ``autograd``."""
-    torch_paths = [p for p in paths if isinstance(p.model, ResumableSAC | TorchUpdate)]
+    torch_paths = [p for p in paths if isinstance(p.model, ResumableSAC | TorchUpdate)
+                   and p.per_call == 1]  # fmt: skip
     losses: dict[str, list[float]] = {p.name: [] for p in torch_paths}
     for step in range(CHECK_STEPS):
         for p in torch_paths:
@@ -335,6 +350,8 @@ def _check(paths: list[Path], n: int) -> None:
         pairs = list(zip(grads, ref_grads, strict=True))
         dg = max(float((a - b).abs().max()) for a, b in (pairs[actor_only] if p.name == "sb3"
                                                         else pairs))  # fmt: skip
+        if p.name.startswith("fn-"):  # CompiledUpdate keeps no gradients (tests compare them)
+            dg = math.nan
         ok = all(torch.allclose(a, b, rtol=1e-4, atol=1e-5) for a, b in zip(params, ref_params,
                                                                           strict=True))  # fmt: skip
         print(f"    {p.name:<12} losses {dl:.1e}  gradients {dg:.1e}  weights {dp:.1e}  "
@@ -373,7 +390,8 @@ def run_preset(
     n = int(agent.batch_size)
     print(f"\n{preset}: actor {pi}, critics 2x{qf}, batch {n}, n_steps {agent.n_steps}, "
           f"ent_coef {agent.ent_coef}, obs {obs_dim}, actions {act_dim}")  # fmt: skip
-    paths = [p for p in _torch_paths(agent, env) + _sbx_paths(agent, env) if p.name not in skip]
+    paths = _torch_paths(agent, env, skip) + _sbx_paths(agent, env)
+    paths = [p for p in paths if p.name not in skip]
     if not any(p.name == "sbx" for p in paths) and "sbx" not in skip:
         print("  sbx: not installed (pip install -c constraints.txt sbx-rl jax)")
     _check(paths, n)
@@ -391,7 +409,9 @@ def run_preset(
         print(f"  {p.name:<12}{ms:>9.2f}{speedup:>10.2f}{ms / floor:>12.2f}{usage:>10.2f}"
               f"{p.first_s:>14.2f}")  # fmt: skip
     if explain:
-        _graph_breaks(next(p.model for p in paths if isinstance(p.model, TorchUpdate)), n)
+        torch_update = [p.model for p in paths if isinstance(p.model, TorchUpdate)]
+        if torch_update:
+            _graph_breaks(torch_update[0], n)
 
 
 def main() -> None:

@@ -24,7 +24,7 @@ disk, `armexp.jit_cache`); `CompiledUpdate.supports` names what it leaves out.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -37,10 +37,13 @@ if TYPE_CHECKING:
     from armexp.agents.sac import ResumableSAC
 
 Tensors = list[torch.Tensor]
+Pair = tuple[torch.Tensor, torch.Tensor]  # an actor term's states and actions
 EPSILON = 1e-6  # SB3's guard in log(1 − tanh² + ε)
 LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
-#: torch.compile's mode: autotuned kernels without CUDA graphs (measured fastest on one core).
-MODE = "max-autotune-no-cudagraphs"
+#: torch.compile's mode: the default. ``max-autotune-no-cudagraphs`` was no faster here and its
+#: tuned matmul-plus-matmul kernel fails on ``sac_paper``'s 256-wide layers (torch 2.13, an
+#: inductor assertion on the two products' layouts).
+MODE: str | None = None
 LOGGED = ("ent_coef", "ent_coef_loss", "critic_loss", "actor_loss")
 
 
@@ -129,7 +132,7 @@ class CompiledUpdate:
 
     def _actor_loss(self, params: Tensors, critic: Tensors, obs: torch.Tensor,
                     noise: torch.Tensor, alpha: torch.Tensor,
-                    terms: list[tuple[torch.Tensor, torch.Tensor]]) -> tuple[torch.Tensor, Any]:  # fmt: skip
+                    terms: list[Pair]) -> tuple[torch.Tensor, Any]:  # fmt: skip
         action, log_prob = self._sample(params, obs, noise)
         min_q = self._q(critic, obs, action).min(dim=1, keepdim=True).values
         actor_loss = (alpha * log_prob - min_q).mean()
@@ -144,7 +147,7 @@ class CompiledUpdate:
 
     def steps(self, actor: Tensors, critic: Tensors, target: Tensors, log_alpha: Tensors,
               state: list[list[Tensors]], lr: torch.Tensor, batches: list[Tensors],
-              noises: Tensors, terms: list[list[tuple[torch.Tensor, torch.Tensor]]],
+              noises: Tensors, terms: list[list[Pair]],
               ) -> tuple[torch.Tensor, Tensors]:  # fmt: skip
         """Every gradient step of a call: for each, (ent_coef, its loss, critic loss, actor
         loss, actor terms' losses); the last step's gradients if `keep_grads`."""
@@ -170,7 +173,7 @@ class CompiledUpdate:
             entropy_loss = torch.zeros(())
             grads = [*actor_grads, *critic_grads]
             if log_alpha:
-                gap = log_prob + float(model.target_entropy)  # type: ignore[arg-type]
+                gap = log_prob + float(model.target_entropy)
                 entropy_loss = -(log_alpha[0] * gap).mean()
                 alpha_grad = [-gap.mean().reshape(1)]
                 adam(log_alpha, alpha_grad, state[2], lr[2], *hyper[2])
@@ -182,7 +185,9 @@ class CompiledUpdate:
         return torch.stack(rows), (grads if self.keep_grads else [])
 
     # --------------------------------------------------------------------- outside it
-    def _adam_state(self, opt: torch.optim.Optimizer, params: Tensors) -> list[Tensors]:
+    def _adam_state(
+        self, opt: torch.optim.Optimizer, params: Sequence[torch.Tensor]
+    ) -> list[Tensors]:
         """[step, exp_avg, exp_avg_sq] of each of ``params`` in ``opt``'s own state (created
         as Adam creates it at its first step)."""
         out = []
@@ -219,8 +224,16 @@ class CompiledUpdate:
             state.append(self._adam_state(model.ent_coef_optimizer, [model.log_ent_coef]))
             lrs[2] = model.ent_coef_optimizer.param_groups[0]["lr"]
         targets = [p.detach() for p in self.target_params]
-        rows, grads = self.fn(*params, targets, log_alpha, state,
-                              torch.tensor(lrs, device=device), batches, noises, terms)
+        rows, grads = self.fn(
+            *params,
+            targets,
+            log_alpha,
+            state,
+            torch.tensor(lrs, device=device),
+            batches,
+            noises,
+            terms,
+        )
         if grads:
             owners = [*self.actor_params, *self.critic_params]
             owners += [model.log_ent_coef] if log_alpha else []  # type: ignore[list-item]
