@@ -11,7 +11,11 @@ batch from its own replay buffer holding the same 30 k random transitions, and d
 step per call (entropy, critics, actor, target averaging), without actor terms:
 
 - ``sb3``: SB3's ``SAC.train`` (Adam's per-tensor loop);
-- ``autograd``, ``analytic``: `ResumableSAC.train` with ``agent.gradients`` so;
+- ``autograd``: `ResumableSAC.train` with ``agent.gradients`` so (``analytic``, the
+  hand-written gradients measured in `docs/update_paths.md`, was removed);
+- ``fn-adam``: ``agent.gradients=compiled`` (`armexp.agents.compiled`), Adam in the graph, with
+  graph breaks allowed; ``fn-adam-full`` as the product runs it (``fullgraph``, static shapes);
+  ``fn-adam-full-xK``: the preset's K gradient steps of a call in one graph, as training calls it;
 - ``compile`` and ``compile-max``: the update as one function of the batch and the policy noise
   (`TorchUpdate`) through ``torch.compile`` in its ``default`` and
   ``max-autotune-no-cudagraphs`` modes; ``eager-func`` is that function uncompiled;
@@ -49,10 +53,11 @@ from omegaconf import DictConfig
 from stable_baselines3 import SAC
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from torch.func import functional_call, grad_and_value
 
-from armexp.agents.analytic import EPSILON, HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN
-from armexp.agents.compiled import CompiledUpdate
+from armexp.agents.compiled import EPSILON, CompiledUpdate
+from armexp.agents.compiled import LOG_SQRT_2PI as HALF_LOG_2PI
 from armexp.agents.sac import ResumableSAC, build_sac, sac_kwargs
 from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
@@ -224,12 +229,12 @@ def _torch_paths(agent: DictConfig, env: DummyVecEnv, skip: set[str]) -> list[Pa
     n = int(agent.batch_size)
     paths = []
     k = int(agent.gradient_steps)
-    names = ["sb3", "autograd", "analytic", "eager-func", "compile", "compile-max",
+    names = ["sb3", "autograd", "eager-func", "compile", "compile-max",
              "fn-adam", "fn-adam-full"] + ([f"fn-adam-full-x{k}"] if k > 1 else [])  # fmt: skip
     for name in names:
         if name in skip:
             continue
-        gradients = {"analytic": "analytic"}.get(name, "compiled" if "fn-" in name else "autograd")
+        gradients = "compiled" if "fn-" in name else "autograd"
         agent.gradients = gradients
         if name == "sb3":
             kwargs = sac_kwargs(agent)
@@ -245,7 +250,7 @@ def _torch_paths(agent: DictConfig, env: DummyVecEnv, skip: set[str]) -> list[Pa
         elif name.startswith("fn-adam"):
             # `CompiledUpdate` (agent.gradients=compiled): Adam written in the graph; with
             # fullgraph and static shapes; xK: the preset's K gradient steps in one graph.
-            full = {"fullgraph": True, "dynamic": False} if "full" in name else {}
+            full = {} if "full" in name else {"fullgraph": False, "dynamic": None}
             model._compiled = CompiledUpdate(model, **full)
             steps = k if name.endswith(f"x{k}") and k > 1 else 1
             paths.append(Path(name, functools.partial(model.train, steps, n), per_call=steps,

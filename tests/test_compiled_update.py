@@ -183,3 +183,16 @@ def test_the_compiled_update_refuses_what_it_does_not_cover() -> None:
         "it writes Adam's update without weight decay, amsgrad or maximize"
     )
     assert CompiledUpdate.supports(_filled("compiled", [])) is None
+
+
+def test_a_config_asking_for_the_removed_analytic_gradients_is_told_to_use_compiled(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from armexp.cli import main
+
+    rc = main(["train", "agent.gradients=analytic", f"tracking.runs_dir={tmp_path / 'runs'}"])
+    assert rc == 2 and capsys.readouterr().err.strip().splitlines() == [
+        "armexp train: agent.gradients='analytic' is not allowed: autograd or compiled (the "
+        "hand-written analytic gradients were removed; use compiled)."
+    ]
+    assert not (tmp_path / "runs").exists()

@@ -81,6 +81,9 @@ class CompiledUpdate:
     keep_grads = False
 
     def __init__(self, model: ResumableSAC, mode: str | None = MODE, **options: Any) -> None:
+        # One graph or an error (no silent graph breaks); shapes fixed per batch size and
+        # steps per call, so a call never recompiles after the first.
+        options = {"fullgraph": True, "dynamic": False, **options}
         self.model = model
         self.policy = _Policy(model.actor)
         self.actor_names = [k for k, _ in self.policy.named_parameters()]

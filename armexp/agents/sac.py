@@ -12,7 +12,6 @@ from omegaconf import DictConfig
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
-from armexp.agents.analytic import AnalyticUpdate
 from armexp.agents.compiled import CompiledUpdate
 from armexp.config import ConfigError
 
@@ -53,28 +52,26 @@ class ResumableSAC(SAC):
       as SB3's update (``tests/test_sac.py``), in less time per update.
     - `actor_terms` (the cloning aid's) add their gradients to the actor loss's before the
       actor's optimiser step.
-    - With ``gradients = "analytic"`` the same losses' gradients are written out
-      (`armexp.agents.analytic`) instead of built by autograd: the same update to rounding, in
-      about two thirds of the time.
+    - With ``gradients = "compiled"`` the same update runs as one ``torch.compile`` graph per
+      call (`armexp.agents.compiled`), Adam included: the same update to rounding, in about
+      half the time or less.
     """
 
     resumed = False
     #: How `train` computes the gradients: ``autograd`` (SB3's losses through torch's
-    #: autograd) or ``analytic`` (`armexp.agents.analytic`); ``agent.gradients``.
+    #: autograd) or ``compiled`` (`armexp.agents.compiled`); ``agent.gradients``.
     gradients = "autograd"
     #: Further actor loss terms on states of their own (the cloning aid); see `ActorTerm`.
     actor_terms: list[ActorTerm]
-    _analytic: AnalyticUpdate | None
     _compiled: CompiledUpdate | None
 
     def _setup_model(self) -> None:
         super()._setup_model()
         self.actor_terms = []
-        self._analytic = None
         self._compiled = None
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "actor_terms", "_analytic", "_compiled"]
+        return [*super()._excluded_save_params(), "actor_terms", "_compiled"]
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
@@ -100,11 +97,7 @@ class ResumableSAC(SAC):
         if self.ent_coef_optimizer is not None:
             optimizers.append(self.ent_coef_optimizer)
         self._update_learning_rate(optimizers)
-        if self.gradients == "analytic":
-            if self._analytic is None:
-                self._analytic = AnalyticUpdate(self)
-            logs = self._analytic.train(gradient_steps, batch_size)
-        elif self.gradients == "compiled":
+        if self.gradients == "compiled":
             if self._compiled is None:  # compiles at its first call
                 self._compiled = CompiledUpdate(self)
             logs = self._compiled.train(gradient_steps, batch_size)
@@ -207,8 +200,7 @@ def _without_argument_checks() -> None:
 
 def _with_gradients(model: ResumableSAC, agent: DictConfig) -> ResumableSAC:
     model.gradients = str(agent.get("gradients", "autograd"))
-    check = {"analytic": AnalyticUpdate.supports, "compiled": CompiledUpdate.supports}
-    why = check[model.gradients](model) if model.gradients in check else None
+    why = CompiledUpdate.supports(model) if model.gradients == "compiled" else None
     if why is not None:
         raise ConfigError(
             f"agent.gradients={model.gradients} is not allowed for this agent: {why}; use "
@@ -219,9 +211,7 @@ def _with_gradients(model: ResumableSAC, agent: DictConfig) -> ResumableSAC:
 
 def _adam(agent: DictConfig) -> dict[str, bool]:
     # Adam's multi-tensor loop keeps autograd's update bit for bit that of SB3's per-tensor
-    # default, in fewer calls; the fused kernel is faster still but rounds differently.
-    if agent.get("gradients", "autograd") == "analytic":
-        return {"fused": True}
+    # default, in fewer calls (the compiled update writes Adam's arithmetic in its graph).
     return {"foreach": True}
 
 
