@@ -10,6 +10,12 @@ fresh cache, and the same sources find their cache again (`numba-<digest>` under
 `configure` runs on ``import armexp``, before any kernel is compiled; it sets
 ``NUMBA_CACHE_DIR`` (inherited by sweep workers and vectorised environments) or, when numba is
 already imported, numba's config. A user's own ``NUMBA_CACHE_DIR`` is kept as the parent folder.
+
+torch's inductor (``agent.gradients=compiled``, `armexp.agents.compiled`) keeps its generated
+code in ``TORCHINDUCTOR_CACHE_DIR``, by default under the system's temporary folder, which a
+reboot or a tmp cleaner empties, and then the next run compiles afresh (tens of seconds).
+`configure` points it at ``inductor`` beside the numba folder unless the user set it; inductor
+keys its entries by torch's version and the traced code itself, so one folder serves all.
 """
 
 from __future__ import annotations
@@ -23,6 +29,8 @@ from pathlib import Path
 #: The packages whose modules hold compiled (numba) kernels.
 COMPILED = ("sim", "envs")
 PREFIX = "numba-"
+#: inductor's cache folder, beside the numba folders (pruning keeps to ``numba-*``).
+INDUCTOR = "inductor"
 #: How many other digests' folders a package cache keeps (other checkouts' versions).
 KEEP = 2
 
@@ -76,6 +84,7 @@ def configure() -> None:
     except OSError:  # unreadable sources: leave numba's default
         return
     os.environ["NUMBA_CACHE_DIR"] = str(folder)
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(folder.parent / INDUCTOR))
     numba = sys.modules.get("numba")
     if numba is not None:
         numba.config.CACHE_DIR = str(folder)

@@ -69,7 +69,8 @@ def small_sac(settings: Any, n_envs: int = 1, batch_size: int = 64) -> Any:
     from armexp.agents.vec import make_vec_env
     from armexp.config import compose_config
 
-    overrides = ["agent=sac_quick", f"agent.n_envs={n_envs}", f"agent.batch_size={batch_size}"]
+    overrides = ["agent=sac_quick", "agent.gradients=autograd",  # no compilation in tests
+                 f"agent.n_envs={n_envs}", f"agent.batch_size={batch_size}"]  # fmt: skip
     agent = compose_config(overrides).agent
     model = build_sac(agent, make_vec_env(settings, n_envs, "dummy", 0), 0)
     model.set_logger(Logger(folder=None, output_formats=[]))

@@ -53,9 +53,10 @@ def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
 
 
 def test_table_ii_says_how_the_gradients_were_computed() -> None:
-    assert _table_two("Gradients", "experiment=demo") == "analytic"
-    assert _table_two("Gradients", "experiment=quick") == "autograd"
-    assert _table_two("Gradients", "experiment=quick", "agent.gradients=analytic") == "analytic"
+    assert _table_two("Gradients", "experiment=demo") == "compiled"
+    assert _table_two("Gradients", "experiment=quick") == "compiled"
+    assert _table_two("Gradients", "experiment=reproduce") == "autograd"
+    assert _table_two("Gradients", "experiment=quick", "agent.gradients=autograd") == "autograd"
 
 
 def test_the_lean_update_gives_the_parameters_of_sb3s_update() -> None:

@@ -237,7 +237,10 @@ AIDS = {
 }
 
 
-@pytest.mark.parametrize("gradients", ["autograd", "analytic"])
+@pytest.mark.parametrize(
+    "gradients",
+    ["autograd", pytest.param("compiled", marks=pytest.mark.slow)],  # it compiles
+)
 def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstrations(
     runs_dir: Path, gradients: str
 ) -> None:

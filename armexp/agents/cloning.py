@@ -100,13 +100,22 @@ class DemonstrationCloning:
         )
         return self.obs[index], self.actions[index]
 
-    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def value(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """The weighted cloning loss of the actor's deterministic actions ``mode`` at a `batch`
-        whose actions are ``actions`` and whose critic value is ``q`` (no gradient)."""
+        whose actions are ``actions`` and whose critic value is ``q`` (no gradient); no side
+        effects, so that a compiled update can trace it."""
         error = ((mode - actions) ** 2).mean(dim=1)
-        loss = self.weight * q.abs().mean() * error.mean()
-        self.last_loss = float(loss.detach())
+        return self.weight * q.abs().mean() * error.mean()
+
+    def record(self, loss: float) -> None:
+        """Log an update's cloning loss (``train/bc_loss``, the mean over a call's steps)."""
+        self.last_loss = float(loss)
         self.model.logger.record_mean("train/bc_loss", self.last_loss)
+
+    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """`value`, recorded."""
+        loss = self.value(mode, actions, q)
+        self.record(float(loss.detach()))
         return loss
 
     def detach(self) -> None:

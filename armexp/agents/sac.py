@@ -12,7 +12,7 @@ from omegaconf import DictConfig
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
-from armexp.agents.analytic import AnalyticUpdate
+from armexp.agents.compiled import CompiledUpdate
 from armexp.config import ConfigError
 
 
@@ -24,9 +24,18 @@ class ActorTerm(Protocol):
         """States (k, d) and actions (k, n) for this update."""
         ...
 
-    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def value(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """The term from the actor's deterministic action ``mode`` (k, n) at the states, the
-        batch's ``actions`` and the critics' (smaller) value of them ``q`` (k,), no gradient."""
+        batch's ``actions`` and the critics' (smaller) value of them ``q`` (k,), no gradient;
+        without side effects (a compiled update traces it)."""
+        ...
+
+    def record(self, loss: float) -> None:
+        """Log one update's `value`."""
+        ...
+
+    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """`value`, recorded (the eager updates)."""
         ...
 
 
@@ -43,26 +52,26 @@ class ResumableSAC(SAC):
       as SB3's update (``tests/test_sac.py``), in less time per update.
     - `actor_terms` (the cloning aid's) add their gradients to the actor loss's before the
       actor's optimiser step.
-    - With ``gradients = "analytic"`` the same losses' gradients are written out
-      (`armexp.agents.analytic`) instead of built by autograd: the same update to rounding, in
-      about two thirds of the time.
+    - With ``gradients = "compiled"`` the same update runs as one ``torch.compile`` graph per
+      call (`armexp.agents.compiled`), Adam included: the same update to rounding, in about
+      half the time or less.
     """
 
     resumed = False
     #: How `train` computes the gradients: ``autograd`` (SB3's losses through torch's
-    #: autograd) or ``analytic`` (`armexp.agents.analytic`); ``agent.gradients``.
+    #: autograd) or ``compiled`` (`armexp.agents.compiled`); ``agent.gradients``.
     gradients = "autograd"
     #: Further actor loss terms on states of their own (the cloning aid); see `ActorTerm`.
     actor_terms: list[ActorTerm]
-    _analytic: AnalyticUpdate | None
+    _compiled: CompiledUpdate | None
 
     def _setup_model(self) -> None:
         super()._setup_model()
         self.actor_terms = []
-        self._analytic = None
+        self._compiled = None
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "actor_terms", "_analytic"]
+        return [*super()._excluded_save_params(), "actor_terms", "_compiled"]
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
@@ -88,10 +97,10 @@ class ResumableSAC(SAC):
         if self.ent_coef_optimizer is not None:
             optimizers.append(self.ent_coef_optimizer)
         self._update_learning_rate(optimizers)
-        if self.gradients == "analytic":
-            if self._analytic is None:
-                self._analytic = AnalyticUpdate(self)
-            logs = self._analytic.train(gradient_steps, batch_size)
+        if self.gradients == "compiled":
+            if self._compiled is None:  # compiles at its first call
+                self._compiled = CompiledUpdate(self)
+            logs = self._compiled.train(gradient_steps, batch_size)
         else:
             logs = self._autograd_train(gradient_steps, batch_size)
         self._n_updates += gradient_steps
@@ -191,10 +200,10 @@ def _without_argument_checks() -> None:
 
 def _with_gradients(model: ResumableSAC, agent: DictConfig) -> ResumableSAC:
     model.gradients = str(agent.get("gradients", "autograd"))
-    why = AnalyticUpdate.supports(model) if model.gradients == "analytic" else None
+    why = CompiledUpdate.supports(model) if model.gradients == "compiled" else None
     if why is not None:
         raise ConfigError(
-            f"agent.gradients=analytic is not allowed for this agent: {why}; use "
+            f"agent.gradients={model.gradients} is not allowed for this agent: {why}; use "
             "agent.gradients=autograd."
         )
     return model
@@ -202,9 +211,7 @@ def _with_gradients(model: ResumableSAC, agent: DictConfig) -> ResumableSAC:
 
 def _adam(agent: DictConfig) -> dict[str, bool]:
     # Adam's multi-tensor loop keeps autograd's update bit for bit that of SB3's per-tensor
-    # default, in fewer calls; the fused kernel is faster still but rounds differently.
-    if agent.get("gradients", "autograd") == "analytic":
-        return {"fused": True}
+    # default, in fewer calls (the compiled update writes Adam's arithmetic in its graph).
     return {"foreach": True}
 
 

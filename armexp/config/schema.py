@@ -232,9 +232,16 @@ class AgentConfig:
     device: str = checked(
         "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
     )
-    #: How the update's gradients are computed: ``autograd`` (SB3's update) or ``analytic``
-    #: (the same losses' gradients written out, `armexp.agents.analytic`; MLP policies).
-    gradients: str = checked("autograd", one_of("autograd", "analytic"))
+    #: How the update runs: ``autograd`` (SB3's update through torch's autograd, eager) or
+    #: ``compiled`` (the same losses as one torch.compile graph, `armexp.agents.compiled`).
+    #: ``analytic`` (gradients written out by hand) was removed: ``compiled`` is faster.
+    gradients: str = checked(
+        "autograd",
+        Check(
+            lambda v: v in ("autograd", "compiled"),
+            "autograd or compiled (the hand-written analytic gradients were removed; use compiled)",
+        ),
+    )
     #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
     #: (`armexp.agents.addons`). None for the paper's plain SAC.
     aids: dict[str, Any] = field(default_factory=dict)
