@@ -64,7 +64,8 @@ def test_a_bad_launcher_is_one_sentence_and_leaves_no_sweep_run(
 
 def test_launcher_options_are_listed(runs_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([*SIM, "hydra/launcher=foo", f"tracking.runs_dir={runs_dir}"]) == 2
-    assert all(name in one_line(capsys) for name in ("basic", "parallel", "ray", "slurm"))
+    line = one_line(capsys)
+    assert all(name in line for name in ("basic", "parallel", "ray", "slurm"))
 
 
 # ------------------------------------------------------------------------- tasks.targets
@@ -102,8 +103,8 @@ def test_play_without_task_targets_is_answered_about_tasks_targets(
     [
         ("simulate", "armexp.stages.simulate", "scenario.duration=1e7",
          "scenario.duration=1e7 is not allowed: its 1 kHz trajectory would take about 3.8 TB"),
-        ("train", "armexp.stages.train", "agent.buffer_size=1e11",
-         "agent.buffer_size=1e11 is not allowed: its replay buffer would take about "
+        ("train", "armexp.stages.train", "agent.buffer_size=100000000000",
+         "agent.buffer_size=100000000000 is not allowed: its replay buffer would take about "
          "12.4 TB"),
         ("train", "armexp.stages.train", "agent.n_envs=100000",
          "agent.n_envs=100000 is not allowed: 100000 environments would take about 1.6 GB"),
@@ -158,3 +159,23 @@ def test_a_report_filter_that_is_not_mlflows_syntax_is_one_sentence(
     client = MlflowClient(f"sqlite:///{runs_dir}/mlflow.db")
     (exp,) = [e for e in client.search_experiments() if e.name == "armexp"]
     assert client.search_runs([exp.experiment_id]) == []
+
+
+def test_a_sweep_that_stops_before_any_job_leaves_no_sweep_run(
+    runs_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever stops Hydra's launcher before a job starts, the sweep run that would group the
+    jobs is not left behind (it goes to MLflow's deleted runs)."""
+    from hydra._internal.core_plugins.basic_launcher import BasicLauncher
+    from mlflow.entities import ViewType
+
+    def broken(*args: Any, **kwargs: Any) -> Any:
+        raise RuntimeError("the launcher broke")
+
+    monkeypatch.setattr(BasicLauncher, "launch", broken)
+    assert main([*SIM, f"tracking.runs_dir={runs_dir}"]) == 1
+    client = MlflowClient(f"sqlite:///{runs_dir}/mlflow.db")
+    experiments = [e.experiment_id for e in client.search_experiments()]
+    assert client.search_runs(experiments) == []
+    (deleted,) = client.search_runs(experiments, run_view_type=ViewType.DELETED_ONLY)
+    assert deleted.data.tags["armexp.stage"] == "sweep"

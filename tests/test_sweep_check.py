@@ -63,13 +63,14 @@ def test_jobs_composed_from_a_shared_composition_equal_hydras(tmp_path: Path) ->
                  "seed=1,2", "tuner.pa=0.1", "controller.dt=0.002",
                  "tasks.targets=[{name: a, x: 1.2, y: 0.5}]", f"tracking.runs_dir={tmp_path}",
                  "agent=sac_quick", "agent.net_arch=[16,16]"]  # fmt: skip
-    composer = JobComposer()
+    composer = JobComposer(stage="train")
     jobs = sweeps.sweep_combinations(overrides)
     assert len(jobs) == 8
     for job in jobs:
         fast = OmegaConf.to_container(composer.compose(job))
-        assert fast == OmegaConf.to_container(compose_config(job)), job
-    assert composer.compositions == 4
+        assert fast == OmegaConf.to_container(compose_config(job, stage="train")), job
+    # Four choices of groups: each composed for its jobs, and its first job in full.
+    assert composer.compositions == 2 * 4
 
 
 def test_a_bad_value_in_a_shared_composition_is_the_same_sentence(
