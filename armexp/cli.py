@@ -14,14 +14,13 @@ import importlib
 import logging
 import os
 import sys
-import tempfile
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from armexp.console import quiet_warnings
+from armexp.precheck import precheck
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -175,54 +174,6 @@ def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
     return overrides
 
 
-def precheck(
-    overrides: Sequence[str], multirun: bool, search_path: Sequence[str] = (), writes: bool = True
-) -> None:
-    """Compose and validate the run's config, or every job's of a sweep (tens of milliseconds
-    a job, small beside the job itself), before Hydra starts any; ``writes``: the command will
-    write to the runs folder (``--cfg job`` only prints)."""
-    from armexp.config import compose_config
-
-    if not multirun:
-        cfg = compose_config([*search_path, *overrides])
-    else:
-        from armexp.sweeps import sweep_combinations
-
-        for job in sweep_combinations(overrides):
-            cfg = compose_config([*search_path, *job])
-    if writes:
-        _writable(cfg)
-
-
-def _writable(cfg: Any) -> None:
-    """The runs folder (Hydra's job folders and the default store go there) can be made, the
-    default store's artifacts folder in it written, and its disk has room to start
-    (`armexp.disk.MIN_FREE_BYTES`)."""
-    from armexp import disk
-    from armexp.config import ConfigError
-
-    folder = Path(str(cfg.tracking.runs_dir)).resolve()
-    for place in (folder, folder / "artifacts"):
-        try:
-            if place == folder:
-                folder.mkdir(parents=True, exist_ok=True)
-            if place.is_dir():
-                with tempfile.TemporaryFile(dir=place):
-                    pass
-        except OSError as exc:
-            where = "there" if place == folder else f"in {place}"
-            raise ConfigError(
-                f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed: armexp cannot write "
-                f"{where} ({exc.strerror}); give a folder you can write to."
-            ) from None
-    free = disk.free_bytes(folder)
-    if free < disk.MIN_FREE_BYTES:
-        raise ConfigError(
-            f"tracking.runs_dir={cfg.tracking.runs_dir} is not allowed now: its disk is full "
-            f"({free // 1024} KB free); free space and run again."
-        )
-
-
 def run_stage(stage: str, args: Sequence[str]) -> int:
     from armexp.config import (
         ConfigError,
@@ -236,7 +187,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         line = split_args([expand_home(a) for a in args])
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
         if not line.runs_no_job:
-            precheck(overrides, line.multirun, _search_path(line), not line.shows_config)
+            overrides = precheck(
+                stage, overrides, line.multirun, _search_path(line), not line.shows_config
+            )
             if line.multirun and not line.shows_config:
                 from armexp.launchers import check_launcher
 
@@ -255,7 +208,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
         quiet_warnings()  # again here: a sweep's jobs may run in worker processes
         try:
-            check(cfg)
+            check(cfg, stage)
         except ConfigError as exc:
             print(f"armexp {stage}: {exc}", file=sys.stderr)
             raise SystemExit(EXIT_USAGE) from None

@@ -85,13 +85,14 @@ def main(args: Sequence[str]) -> int:
         from mlflow.exceptions import MlflowException
         from mlflow.tracking import MlflowClient
 
-        from armexp import tracking
+        from armexp import run_ids, tracking
         from armexp.config import compose_config
 
         uri = tracking.store_uri(compose_config(overrides), reading=True)
         client = MlflowClient(uri)
         runs = []
-        for run_id in ids:
+        for given in ids:
+            run_id = run_ids.resolve(client, given, "run id", tracking.store.hide_password(uri))
             try:
                 runs.append(client.get_run(run_id))
             except MlflowException:

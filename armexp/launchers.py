@@ -13,6 +13,8 @@ import socket
 from collections.abc import Sequence
 from pathlib import Path
 
+from omegaconf import DictConfig, OmegaConf
+
 from armexp.config import ConfigError
 
 log = logging.getLogger(__name__)
@@ -61,6 +63,82 @@ def check_launcher(overrides: Sequence[str]) -> None:
     if name == "ray":
         address = _override(overrides, "hydra.launcher.ray.init.address") or "auto"
         _probe_ray(address)
+
+
+def _hydra_overrides(overrides: Sequence[str]) -> list[str]:
+    return [o for o in overrides if o.lstrip("+~").partition("=")[0].split(".")[0]
+            .split("/")[0] == "hydra"]  # fmt: skip
+
+
+def check_settings(overrides: Sequence[str], search_path: Sequence[str] = ()) -> None:
+    """One sentence (`ConfigError`) for a launcher option that does not exist, a launcher
+    setting the chosen launcher does not have, or a setting's value it cannot use; Hydra would
+    find the first two only once the sweep had started, the last only when launching."""
+    from armexp.config import compose_unchecked
+
+    ours = _hydra_overrides(overrides)
+    if not ours:
+        return
+    settings = [o for o in ours if o.lstrip("+~").startswith(f"{LAUNCHER}.")]
+    cfg = compose_unchecked([*search_path, *[o for o in ours if o not in settings]], hydra=True)
+    name = str(cfg.hydra.runtime.choices.get("hydra/launcher"))
+    for override in settings:
+        key, _, value = override.lstrip("+~").partition("=")
+        setting = key[len(LAUNCHER) + 1 :]
+        if OmegaConf.select(cfg.hydra.launcher, setting, default=_ABSENT) is _ABSENT:
+            raise ConfigError(
+                f"{key}={value} is not allowed: the launcher hydra/launcher={name} has no "
+                f"setting {setting}{_who_has(setting, search_path)}."
+            )
+    launcher = compose_unchecked([*search_path, *ours], hydra=True).hydra.launcher
+    _check_values(launcher)
+
+
+_ABSENT = object()
+LAUNCHER = "hydra.launcher"
+#: Settings of Hydra's submitit launchers (SLURM, local) that count something: 1 or more.
+COUNTS = ("timeout_min", "cpus_per_task", "tasks_per_node", "nodes", "mem_gb",
+          "array_parallelism")  # fmt: skip
+
+
+def _check_values(launcher: DictConfig) -> None:
+    target = str(launcher.get("_target_", ""))
+    if target.endswith("JoblibLauncher"):
+        n_jobs = launcher.get("n_jobs")
+        if n_jobs is not None and int(n_jobs) == 0:
+            raise ConfigError(
+                f"{LAUNCHER}.n_jobs=0 is not allowed: give how many jobs run at once (1 or "
+                "more), or -1 for one per core (-2 for all cores but one, and so on)."
+            )
+    if ".submitit_launcher." in target:
+        for key in COUNTS:
+            value = launcher.get(key)
+            if value is not None and not value >= 1:
+                raise ConfigError(f"{LAUNCHER}.{key}={value} is not allowed: it must be ≥ 1.")
+
+
+#: Hydra's own launchers (its plugins'), beside those of ``conf/hydra/launcher``.
+HYDRA_LAUNCHERS = ("basic", "joblib", "submitit_local", "submitit_slurm")
+
+
+def _who_has(setting: str, search_path: Sequence[str]) -> str:
+    """``; hydra/launcher=X and … have it`` (or that none does), from composing each launcher:
+    this runs only to explain a refusal."""
+    from armexp.config import compose_unchecked, group_options
+
+    having = []
+    for option in dict.fromkeys([*HYDRA_LAUNCHERS, *group_options("hydra/launcher")]):
+        try:
+            cfg = compose_unchecked([*search_path, f"hydra/launcher={option}"], hydra=True)
+        except ConfigError:
+            continue  # its plugin is not installed
+        if OmegaConf.select(cfg.hydra.launcher, setting, default=_ABSENT) is not _ABSENT:
+            having.append(f"hydra/launcher={option}")
+    if not having:
+        return "; no launcher has it"
+    if len(having) == 1:
+        return f"; {having[0]} has it"
+    return f"; {', '.join(having[:-1])} and {having[-1]} have it"
 
 
 def _importable(module: str) -> bool:

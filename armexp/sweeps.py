@@ -122,6 +122,12 @@ def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
         jobs = client.search_runs(
             [experiment_id], f"tags.`{tracking.PARENT_TAG}` = '{sweep_id}'", max_results=10000
         )
+        if not jobs and status == "FAILED":
+            # Hydra stopped before any job had a run (its own error was printed): an empty
+            # sweep run would only be clutter, so it goes to MLflow's deleted runs.
+            tracking.retry(lambda: client.set_terminated(sweep_id, status))
+            tracking.retry(lambda: client.delete_run(sweep_id))
+            return
         unfinished = sum(r.info.status != "FINISHED" for r in jobs)
         why = "interrupted" if status == "KILLED" else "a job failed"
         reason = f"{why}: {unfinished} of its {len(jobs)} jobs did not finish"

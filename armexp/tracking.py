@@ -34,7 +34,7 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
-from armexp import anchor, disk, lineage, liveness, run_names, store
+from armexp import anchor, disk, lineage, liveness, run_ids, run_names, store
 from armexp.config import ConfigError
 from armexp.reads import Reads
 
@@ -415,6 +415,7 @@ def find_stage_run(
     client = MlflowClient(store_uri(cfg))
     match = dict(match or {})
     if run_id:
+        run_id = run_ids.resolve(client, str(run_id), key, store.hide_password(store_uri(cfg)))
         try:
             run = client.get_run(run_id)
         except MlflowException:

@@ -39,3 +39,16 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["train", *SMALL_TRAIN, where]) == 0
     assert main(["eval", "tasks.n_random=2", f"eval.baselines=[{pid_baseline()}]", where]) == 0
     return runs
+
+
+@pytest.fixture(scope="session")
+def three_link_train(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A store holding one short FINISHED train run of the three-link arm (its configured
+    gains, 100-step episodes): (runs folder, run id). Tests may add eval and play runs."""
+    from tests.helpers import stage_runs
+
+    runs = tmp_path_factory.mktemp("three_link") / "runs"
+    args = ["train", *SMALL_TRAIN, "robot=three_link", "train.gains=config"]
+    assert main([*args, f"tracking.runs_dir={runs}"]) == 0
+    (run,) = stage_runs(runs, "train")
+    return runs, str(run.info.run_id)

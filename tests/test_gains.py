@@ -23,8 +23,10 @@ def test_lookup_errors_name_the_key(compose: Callable[..., DictConfig]) -> None:
         pass
     with pytest.raises(ConfigError, match="it is a simulate run, and a tune run is needed"):
         gains.tuned(cfg, "subsystem_adaptive", robot, "gaing", run_id=run.info.run_id)
-    with pytest.raises(ConfigError, match=r"tune_run=nope is not allowed: no run"):
+    with pytest.raises(ConfigError, match=r"tune_run=nope is not allowed: a run id is 32 hex"):
         gains.tuned(cfg, "subsystem_adaptive", robot, "gaing", run_id="nope")
+    with pytest.raises(ConfigError, match=r"tune_run=0{32} is not allowed: no run"):
+        gains.tuned(cfg, "subsystem_adaptive", robot, "gaing", run_id="0" * 32)
 
 
 def test_latest_matching_tune_run_is_found(compose: Callable[..., DictConfig]) -> None:

@@ -51,9 +51,13 @@ def test_diff_of_an_unknown_run_or_one_id_is_one_sentence(
     two_runs: tuple, capsys: pytest.CaptureFixture[str]
 ) -> None:
     runs, (a, _) = two_runs
+    unknown = "0" * 32
+    assert main(["diff", a.info.run_id, unknown, f"tracking.runs_dir={runs}"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"armexp diff: run id {unknown} is not allowed: no run with that id")
     assert main(["diff", a.info.run_id, "nope", f"tracking.runs_dir={runs}"]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert line.startswith("armexp diff: run id nope is not allowed: no run with that id")
+    assert line.startswith("armexp diff: run id nope is not allowed: a run id is 32 hex digits")
     assert main(["diff", a.info.run_id]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "takes exactly two run ids and got 1" in line

@@ -8,7 +8,6 @@ the value and what is allowed.
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -26,11 +25,13 @@ from omegaconf.errors import OmegaConfBaseException
 
 from armexp.config.checks import Check, ConfigError, fail
 from armexp.config.errors import translate_error
+from armexp.config.filters import check_filter
 from armexp.config.paths import check_paths, expand_home
 from armexp.config.schema import SCHEMAS, ArmexpConfig
+from armexp.config.workspace import target_problem, workspace_checks
 
-__all__ = ["ConfigError", "compose_config", "config_dir", "expand_home", "register_schemas",
-           "validate"]  # fmt: skip
+__all__ = ["ConfigError", "compose_config", "compose_unchecked", "config_dir", "expand_home",
+           "register_schemas", "target_problem", "validate"]  # fmt: skip
 
 
 def config_dir() -> Path:
@@ -60,8 +61,17 @@ def _hydra_context() -> Iterator[None]:
         GlobalHydra.instance().clear()
 
 
-def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
-    """Compose the root config with Hydra's compose API, translating errors to `ConfigError`."""
+def compose_config(overrides: Sequence[str] = (), stage: str | None = None) -> DictConfig:
+    """Compose the root config with Hydra's compose API, translating errors to `ConfigError`,
+    and `validate` it for ``stage``."""
+    cfg = compose_unchecked(overrides)
+    validate(cfg, stage)
+    return cfg
+
+
+def compose_unchecked(overrides: Sequence[str] = (), hydra: bool = False) -> DictConfig:
+    """The root config as Hydra composes it (with its ``hydra`` node: ``hydra``), errors as
+    `ConfigError`, values not yet validated."""
     overrides = normalize_overrides(overrides)
     try:
         for override in OverridesParser.create().parse_overrides(overrides):
@@ -71,13 +81,13 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
                     "(--multirun) to sweep, or write a list in brackets."
                 )
         with _hydra_context():
-            cfg = compose(config_name="config", overrides=list(overrides))
+            return compose(
+                config_name="config", overrides=list(overrides), return_hydra_config=hydra
+            )
     except ConfigError:
         raise
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
         raise translate_error(exc, overrides) from None
-    validate(cfg)
-    return cfg
 
 
 #: Config maps keyed by the user: ``eval.tune_runs.pid_itae=<id>`` (or ``={pid_itae: <id>}``)
@@ -115,13 +125,16 @@ def group_options(group: str) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------- validation
-def validate(cfg: DictConfig) -> None:
-    """Check field values against their schema checks, then the cross-field rules."""
+def validate(cfg: DictConfig, stage: str | None = None) -> None:
+    """Check field values against their schema checks, then the cross-field rules; ``stage``:
+    the stage that will run on ``cfg`` (a section only another stage reads is not held to its
+    rules), None for every rule."""
     _walk(cfg, "")
     check_paths(cfg)
     _cross_checks(cfg)
-    _workspace_checks(cfg)
+    workspace_checks(cfg, stage)
     _agent_checks(cfg)
+    check_filter(cfg)
 
 
 def _walk(node: Any, path: str) -> None:
@@ -159,102 +172,6 @@ def _walk(node: Any, path: str) -> None:
 
 def _is_container(x: Any) -> bool:
     return isinstance(x, DictConfig | ListConfig)
-
-
-def _segment_distance(
-    p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]
-) -> float:
-    """Distance from point ``p`` to the segment ``a``–``b``."""
-    ax, ay = a
-    dx, dy = b[0] - ax, b[1] - ay
-    length2 = dx * dx + dy * dy
-    t = 0.0 if length2 == 0 else max(0.0, min(1.0, ((p[0] - ax) * dx + (p[1] - ay) * dy) / length2))
-    return math.hypot(p[0] - ax - t * dx, p[1] - ay - t * dy)
-
-
-def target_problem(
-    point: tuple[float, float],
-    lengths: Sequence[float],
-    circles: Sequence[tuple[float, float, float]],
-) -> str | None:
-    """Why the arm (base at the origin) cannot have its tip at ``point``: outside its reach, or
-    inside an obstacle circle; None when neither."""
-    reach, inner = sum(lengths), max(0.0, 2 * max(lengths) - sum(lengths))
-    distance = math.hypot(*point)
-    if not inner <= distance <= reach:
-        return (
-            f"it is {distance:.3g} m from the base, outside the arm's reach "
-            f"[{inner:.3g}, {reach:.3g}] m"
-        )
-    for k, (x, y, r) in enumerate(circles):
-        if math.hypot(point[0] - x, point[1] - y) < r:
-            return f"it lies inside obstacles.circles[{k}] (x={x:g}, y={y:g}, r={r:g})"
-    return None
-
-
-def _workspace_checks(cfg: DictConfig) -> None:
-    """Targets the arm can reach outside every obstacle, and no obstacle over the arm at its
-    start pose (base at the origin, angles summed along the chain)."""
-    robot, obstacles, tasks = cfg.get("robot"), cfg.get("obstacles"), cfg.get("tasks")
-    if robot is None or obstacles is None or tasks is None:
-        return
-    lengths = [float(v) for v in robot.lengths]
-    circles = [(float(c.x), float(c.y), float(c.r)) for c in obstacles.circles]
-    for i, target in enumerate(tasks.targets):
-        point = (float(target.x), float(target.y))
-        problem = target_problem(point, lengths, circles)
-        if problem:
-            raise ConfigError(
-                f"tasks.targets[{i}] ({target.name} at x={point[0]:g}, y={point[1]:g}) is not "
-                f"allowed: {problem}."
-            )
-    _play_checks(cfg, lengths, circles)
-    joints, angle = [(0.0, 0.0)], 0.0
-    for length, q in zip(lengths, robot.q0, strict=True):
-        angle += float(q)
-        last = joints[-1]
-        joints.append((last[0] + length * math.cos(angle), last[1] + length * math.sin(angle)))
-    for k, (x, y, r) in enumerate(circles):
-        for j in range(len(lengths)):
-            if _segment_distance((x, y), joints[j], joints[j + 1]) < r:
-                raise ConfigError(
-                    f"obstacles.circles[{k}] (x={x:g}, y={y:g}, r={r:g}) is not allowed: it covers "
-                    f"link {j + 1} of the arm at its start pose robot.q0="
-                    f"{[float(q) for q in robot.q0]}."
-                )
-
-
-def _play_checks(
-    cfg: DictConfig, lengths: list[float], circles: list[tuple[float, float, float]]
-) -> None:
-    """`armexp play`'s tasks name ``tasks.targets``; its extra targets are points [x, y] the arm
-    can reach outside every obstacle."""
-    play = cfg.get("play")
-    if play is None:
-        return
-    if not play.tasks and not play.targets:
-        raise ConfigError(
-            "play.tasks=[] with play.targets=[] is not allowed: give at least one task or target."
-        )
-    names = [str(t.name) for t in cfg.tasks.targets]
-    for task in play.tasks:
-        if str(task) not in names:
-            raise ConfigError(
-                f"play.tasks contains {task}, which is not allowed: the tasks of "
-                f"tasks={cfg.tasks.name} are {', '.join(names) or 'none'}."
-            )
-    for i, target in enumerate(play.targets):
-        value: Any = OmegaConf.to_container(target) if _is_container(target) else target
-        numbers = isinstance(value, list) and all(
-            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-            for v in value
-        )
-        if not numbers or len(value) != 2:
-            raise fail(f"play.targets[{i}]", value, "give a point as [x, y] in metres")
-        point = (float(value[0]), float(value[1]))
-        problem = target_problem(point, lengths, circles)
-        if problem:
-            raise fail(f"play.targets[{i}]", list(point), problem)
 
 
 def _cross_checks(cfg: DictConfig) -> None:

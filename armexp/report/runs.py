@@ -22,6 +22,7 @@ import yaml
 from mlflow.entities import Run
 from mlflow.tracking import MlflowClient
 
+from armexp import run_ids
 from armexp.config import ConfigError
 
 STAGE_TAG = "armexp.stage"
@@ -68,6 +69,7 @@ def select(
     pipeline_run: str | None = None,
     eval_runs: list[str] | None = None,
     filter_string: str | None = None,
+    store: str = "this store",
 ) -> Selection:
     """Eval runs by explicit ids, by pipeline parent run, by an MLflow filter, or (default) those
     of the latest pipeline run, else the latest eval run; then their lineage."""
@@ -96,8 +98,11 @@ def select(
             out += search(f"{finished_evals} and tags.`{PARENT_TAG}` = '{child.info.run_id}'")
         return out
 
+    if pipeline_run:
+        pipeline_run = run_ids.resolve(client, pipeline_run, "report.pipeline_run", store)
     if eval_runs:
         evals = []
+        eval_runs = [run_ids.resolve(client, r, "report.eval_runs", store) for r in eval_runs]
         for run_id in eval_runs:
             try:
                 run = client.get_run(run_id)

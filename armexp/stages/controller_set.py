@@ -17,13 +17,18 @@ where the gains came from (docs/design.md §4, §8; the labels are `armexp.basel
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import yaml
-from omegaconf import DictConfig, OmegaConf
+from mlflow.exceptions import MlflowException
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf.errors import OmegaConfBaseException
 
 from armexp import run_names, tracking
 from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
@@ -120,7 +125,7 @@ def load_policy(cfg: DictConfig, section: str) -> Policy:
     controller's gains per ``<section>.adaptive_gains``."""
     train_run = _train_run(cfg, section)
     train_id = train_run.info.run_id
-    train_cfg = OmegaConf.load(tracking.download_artifact(train_id, "config.yaml", cfg))
+    train_cfg = OmegaConf.load(_policy_artifact(cfg, section, train_id, "config.yaml"))
     assert isinstance(train_cfg, DictConfig)
     # The episode targets are this run's choice; the environment is the policy's.
     train_cfg.tasks = cfg.tasks
@@ -138,16 +143,77 @@ def load_policy(cfg: DictConfig, section: str) -> Policy:
         assert isinstance(values, dict)
         own = Gains(trained_with, {str(k): v for k, v in values.items()}, CONFIG, None, None)
     else:
-        values = yaml.safe_load(tracking.download_artifact(train_id, "gains.yaml", cfg).read_text())
+        values = yaml.safe_load(_policy_artifact(cfg, section, train_id, "gains.yaml").read_text())
         own = _trained_gains(cfg, train_run, trained_with, values)
         if own.tune_run:
             tags[TUNE_RUN_TAG] = own.tune_run
     if train_run.data.tags.get(run_names.AGENT_PRESET_TAG):  # the run is named after the policy
         tags[run_names.AGENT_PRESET_TAG] = train_run.data.tags[run_names.AGENT_PRESET_TAG]
-    model_path = tracking.download_artifact(train_id, f"{MODEL_DIR}/{MODEL_FILE}", cfg)
+    model_path = _policy_artifact(cfg, section, train_id, f"{MODEL_DIR}/{MODEL_FILE}")
     model = load_sac(str(model_path), None, train_cfg.agent)
     entry = Entry(own_label(trained_with), PROPOSED, own)
     return Policy(train_id, train_cfg, model, entry, tags)
+
+
+#: What each artifact of a train run that a policy is loaded from is, for the sentence that
+#: says it is missing.
+POLICY_ARTIFACTS = {"config.yaml": "the config it trained with", "gains.yaml": "its gains",
+                    f"{MODEL_DIR}/{MODEL_FILE}": "its final model"}  # fmt: skip
+
+
+def _policy_artifact(cfg: DictConfig, section: str, train_id: str, path: str) -> Path:
+    """The artifact ``path`` of the policy's train run, downloaded; a `ConfigError` naming the
+    run and the artifact when the run has none (deleted, or never written)."""
+    try:
+        return tracking.download_artifact(train_id, path, cfg)
+    except (MlflowException, OSError):
+        folder, _, name = path.rpartition("/")
+        client = MlflowClient(tracking.store_uri(cfg))
+        if any(Path(f.path).name == name for f in client.list_artifacts(train_id, folder or None)):
+            raise  # it is there: something else went wrong
+    if cfg[section].train_run:
+        run = f"{section}.train_run={train_id} is not allowed: that train run"
+    else:
+        run = f"{section}.train_run is not set, and the latest matching train run {train_id}"
+    raise ConfigError(
+        f"{run} has no artifact {path} ({POLICY_ARTIFACTS[path]}; it was deleted or never "
+        "written); train again, or give another train run."
+    )
+
+
+#: The config sections a policy brings from its train run: the arm, its obstacles and its
+#: environment (`armexp.envs.factory.settings_from_config` builds the episodes from them).
+POLICY_SECTIONS = ("robot", "obstacles", "env")
+
+
+def as_run(composed: DictConfig, policy: Policy, stage: str) -> DictConfig:
+    """``composed`` with the policy's arm, obstacles and environment (its train run's), which
+    are what the episodes ran on: the config the eval or play run records. A composed robot
+    other than the policy's is said on one line."""
+    differ = [key for key in POLICY_SECTIONS
+              if _plain(composed.get(key)) != _plain(policy.train_cfg.get(key))]  # fmt: skip
+    if not differ:
+        return composed
+    if str(composed.robot.name) != policy.robot:
+        print(
+            f"{stage}: the policy of train run {policy.train_id[:8]} was trained on "
+            f"robot={policy.robot}, which runs here and is recorded (robot={composed.robot.name} "
+            "was composed)"
+        )
+    out = copy.deepcopy(composed)
+    for key in differ:
+        try:  # merged into the composed node, which keeps its schema's types
+            merged = OmegaConf.merge(out[key], policy.train_cfg[key])
+        except OmegaConfBaseException as exc:  # a train run of an older config's keys
+            log.warning("%s: the run records the composed %s (%s)", stage, key, exc)
+            continue
+        with open_dict(out):
+            out[key] = merged
+    return out
+
+
+def _plain(node: Any) -> Any:
+    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else node
 
 
 def _trained_gains(cfg: DictConfig, train_run: Any, controller: str, values: Any) -> Gains:

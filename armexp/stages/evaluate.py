@@ -53,6 +53,7 @@ from armexp.stages import animate
 from armexp.stages.controller_set import (
     CONTROLLERS_FILE,
     Entry,
+    as_run,
     controller_set,
     lineage_tags,
     load_policy,
@@ -92,6 +93,7 @@ def run(composed: DictConfig) -> tracking.StageResult:
     policy = load_policy(cfg, "eval")
     entries = controller_set(cfg, policy)
     tags = {**policy.tags, **lineage_tags(entries)}
+    composed = as_run(composed, policy, "eval")
     with tracking.stage_run(
         composed, "eval", run_name=cfg.eval.run_name, extra_tags=tags, reads=READS
     ) as active:

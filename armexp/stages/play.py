@@ -36,7 +36,7 @@ from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
 from armexp.sim.trajectory import trajectory_columns
 from armexp.stages import animate
-from armexp.stages.controller_set import lineage_tags, load_policy, play_entry
+from armexp.stages.controller_set import as_run, lineage_tags, load_policy, play_entry
 
 
 def _episodes(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any], int]]:
@@ -78,6 +78,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     policy = load_policy(cfg, "play")
     entry = play_entry(cfg, policy)
     label, gains = entry.label, entry.gains.values
+    cfg = as_run(cfg, policy, "play")
     with open_dict(cfg):  # the run's params and name record the label that played
         cfg.play.controller = label
     env = ReachEnv(settings_from_config(policy.train_cfg, entry.controller, gains), record=True)

@@ -42,6 +42,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
         pipeline_run=cfg.report.pipeline_run,
         eval_runs=[str(r) for r in cfg.report.eval_runs],
         filter_string=cfg.report.filter,
+        store=tracking.store.hide_password(uri),
     )
     target = out_dir(cfg)
     folder.check(target)

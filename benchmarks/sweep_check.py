@@ -1,0 +1,57 @@
+"""Seconds `armexp <stage> -m …` spends checking every job's config before the first job starts.
+
+Run from the repository root::
+
+    python benchmarks/sweep_check.py                       # the three sweeps below, 200 jobs each
+    python benchmarks/sweep_check.py tune -m 'tuner.seed=range(0,200)'
+
+It runs the command in this process up to the point where the sweep would open its MLflow run
+(the check is then over), against a throw-away runs folder, and prints the seconds from the
+command's start: argument parsing, the check of every job, and Hydra's launcher settings.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from typing import Any
+
+SWEEPS = [
+    ["tune", "-m", "tuner.seed=range(0,200)"],
+    ["tune", "-m", "experiment=smoke", "seed=range(0,200)"],
+    ["tune", "-m", "controller=subsystem_adaptive,pid", "tuner.seed=range(0,100)"],
+]
+
+
+class _Checked(Exception):
+    pass
+
+
+def check_seconds(args: list[str]) -> float:
+    from armexp import sweeps
+    from armexp.cli import main
+
+    def stop(*_: Any, **__: Any) -> Any:
+        raise _Checked
+
+    sweeps.open_sweep = stop  # type: ignore[assignment]
+    with tempfile.TemporaryDirectory() as folder:
+        start = time.perf_counter()
+        try:
+            code = main([*args, f"tracking.runs_dir={folder}/runs"])
+        except _Checked:
+            return time.perf_counter() - start
+    raise SystemExit(f"{' '.join(args)} stopped before its sweep (exit code {code})")
+
+
+def main() -> None:
+    import armexp.cli  # noqa: F401  (imports are not part of the check)
+
+    for args in [sys.argv[1:]] if len(sys.argv) > 1 else SWEEPS:
+        seconds = check_seconds(args)
+        print(f"{seconds:6.1f} s  armexp {' '.join(args)}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
