@@ -247,12 +247,16 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     import hydra
 
-    from armexp import disk, remote, signals, sweeps
+    from armexp import disk, remote, signals, sweeps, workers
 
     def job(cfg: Any) -> Any:
+        quiet_warnings()  # again here: a sweep's jobs may run in worker processes
+        with workers.job():
+            return checked_job(cfg)
+
+    def checked_job(cfg: Any) -> Any:
         from armexp.config import validate as check
 
-        quiet_warnings()  # again here: a sweep's jobs may run in worker processes
         try:
             check(cfg)
         except ConfigError as exc:
@@ -291,6 +295,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
     restore = signals.install()
+    workers.mark_command()
     status = "FAILED"
     beat = contextlib.nullcontext() if sweep is None else sweep[2]
     try:

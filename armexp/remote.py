@@ -159,10 +159,9 @@ def lost_sentence(exc: BaseException, uri: str | None = None) -> str:
     found = next((e for e in chain(exc) if isinstance(e, StoreLost)), None)
     where = found.uri if found else hide_password(uri or "")
     why = reason(exc)
-    head = (
-        f"the store tracking.uri={where} stopped answering ({why}) and did not answer again "
-        f"within tracking.timeout_s={timeout_s():g} s"
-    )
+    head = f"the store tracking.uri={where} stopped answering ({why})"
+    if where.startswith(("http://", "https://")):  # MLflow retried its requests (`configure`)
+        head += f" and did not answer again within tracking.timeout_s={timeout_s():g} s"
     if found is None or found.run_id is None:
         return f"{head}; no run was started; run again when it answers."
     if found.marked:

@@ -218,3 +218,64 @@ def test_the_run_a_dead_server_left_running_is_marked_failed_when_the_server_ret
     closed, _ = stage_runs(server.url, "simulate", newest_first=False)
     assert closed.info.run_id == left.info.run_id and closed.info.status == "FAILED"
     assert closed.data.tags["armexp.error"].startswith("process stopped")
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid``."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(stat.parent.name))
+    return found
+
+
+def _command_line(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_text(errors="replace")
+    except OSError:
+        return ""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.slow
+def test_the_workers_of_a_joblib_sweep_whose_command_is_killed_exit_after_their_job(
+    runs_dir: Path,
+) -> None:
+    """Was: loky's idle workers stayed 300 s, and one caught reading a half-written job stayed
+    for good. Now each exits once the job in hand has ended (long before loky's idle timeout,
+    the 300 s the loop below stays under); the jobs that ran are FINISHED."""
+    command = [sys.executable, "-m", "armexp", "simulate", "-m", "seed=range(0,16)",
+               "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "scenario.duration=40",
+               f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:
+            workers = [p for p in _children(proc.pid) if "popen_loky" in _command_line(p)]
+            with contextlib.suppress(Exception):  # the store may not exist yet
+                if len(workers) == 2 and stage_runs(runs_dir, "simulate"):
+                    break
+            time.sleep(0.5)
+        assert proc.poll() is None and len(workers) == 2, "the sweep did not start its workers"
+        proc.kill()
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 240
+        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        left = [w for w in workers if _alive(w)]
+    finally:
+        for pid in [*workers, proc.pid]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    assert left == []
+    runs = stage_runs(runs_dir, "simulate")
+    assert runs and all(r.info.status in ("FINISHED", "RUNNING") for r in runs)
