@@ -23,7 +23,6 @@ from armexp.console import quiet_warnings
 from armexp.precheck import precheck
 
 EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130
 
 # stage -> (module with `run(cfg)`, one-line help).
 STAGES: dict[str, tuple[str, str]] = {
@@ -201,12 +200,16 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     import hydra
 
-    from armexp import disk, sweeps
+    from armexp import disk, remote, signals, sweeps, workers
 
     def job(cfg: Any) -> Any:
+        quiet_warnings()  # again here: a sweep's jobs may run in worker processes
+        with workers.job():
+            return checked_job(cfg)
+
+    def checked_job(cfg: Any) -> Any:
         from armexp.config import validate as check
 
-        quiet_warnings()  # again here: a sweep's jobs may run in worker processes
         try:
             check(cfg, stage)
         except ConfigError as exc:
@@ -218,9 +221,13 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             print(f"armexp {stage}: {exc}", file=sys.stderr)
             raise SystemExit(EXIT_USAGE) from None
         except Exception as exc:
-            if not disk.is_full(exc):
+            if disk.is_full(exc):
+                print(f"armexp {stage}: {disk.sentence(exc)}", file=sys.stderr)
+            elif remote.is_lost(exc):
+                print(f"armexp {stage}: {remote.lost_sentence(exc, cfg.tracking.uri)}",
+                      file=sys.stderr)  # fmt: skip
+            else:
                 raise
-            print(f"armexp {stage}: {disk.sentence(exc)}", file=sys.stderr)
             raise SystemExit(1) from None
 
     register_schemas()
@@ -240,7 +247,8 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         f"hydra.job.name={stage}",
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
-    _terminate_as_interrupt()
+    restore = signals.install()
+    workers.mark_command()
     status = "FAILED"
     beat = contextlib.nullcontext() if sweep is None else sweep[2]
     try:
@@ -254,33 +262,50 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         return code
     except KeyboardInterrupt as exc:
         status = "KILLED"
-        from armexp.tracking import RunInterrupted
-
-        started = isinstance(exc, RunInterrupted) or sweep is not None
-        print(
-            f"armexp {stage}: interrupted; "
-            + ("the MLflow run is marked KILLED." if started else "no run was started."),
-            file=sys.stderr,
-        )
-        return EXIT_INTERRUPTED
+        print(f"armexp {stage}: {signals.what()}; {_stopped(exc, sweep is not None)}",
+              file=sys.stderr)  # fmt: skip
+        return signals.exit_code()
     finally:
-        if sweep is not None:
-            sweeps.close_sweep(sweep, status)
+        try:
+            if sweep is not None:
+                _close_sweep(stage, sweep, status)
+        finally:
+            restore()
+            remote.reset()
     return 0
 
 
-def _terminate_as_interrupt() -> None:
-    """SIGTERM (a scheduler's stop, `kill`) ends a stage like Ctrl-C: run KILLED, state kept."""
-    import signal
-    import threading
+def _close_sweep(stage: str, sweep: Any, status: str) -> None:
+    """End the sweep run with ``status``; when its store does not answer, or a second signal
+    stops this, say what is left."""
+    from armexp import remote, sweeps
 
-    if threading.current_thread() is not threading.main_thread():
-        return
+    try:
+        sweeps.close_sweep(sweep, status)
+    except BaseException as exc:
+        if not (isinstance(exc, KeyboardInterrupt) or remote.is_lost(exc)):
+            raise
+        why = "interrupted again" if isinstance(exc, KeyboardInterrupt) else remote.reason(exc)
+        print(
+            f"armexp {stage}: sweep run {sweep[1]} could not be marked {status} ({why}): it "
+            "stays RUNNING in the store until the next armexp command against that store marks "
+            "it FAILED.",
+            file=sys.stderr,
+        )
 
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, handler)
+def _stopped(exc: KeyboardInterrupt, sweep: bool) -> str:
+    """What became of the run a signal stopped."""
+    from armexp.tracking import RunInterrupted
+
+    if isinstance(exc, RunInterrupted) and exc.unmarked:
+        return (
+            f"run {exc.run_id} could not be marked KILLED ({exc.unmarked}): it stays RUNNING in "
+            "the store until the next armexp command against that store marks it FAILED."
+        )
+    if isinstance(exc, RunInterrupted) or sweep:
+        return "the MLflow run is marked KILLED."
+    return "no run was started."
 
 
 def main(argv: Sequence[str] | None = None) -> int:

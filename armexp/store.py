@@ -1,6 +1,7 @@
 """Opening a tracking store safely: a SQLite store created and migrated under a lock, waited
 for while another process writes to it, its artifact locations following its folder when it was
-copied or moved (`armexp.anchor`); a tracking server asked once whether it answers; passwords
+copied or moved (`armexp.anchor`); a tracking server or a database server asked once whether it
+answers (`armexp.remote`); passwords
 in a tracking URI kept out of everything armexp logs, prints or writes.
 
 Nothing here knows about stages or runs (`armexp.tracking` does).
@@ -16,6 +17,7 @@ import urllib.error
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 from urllib.parse import unquote, urlsplit, urlunsplit
 
 from mlflow.tracking import MlflowClient
@@ -27,12 +29,13 @@ from armexp.config import ConfigError
 #: SECRET_URI_ENV.
 HIDDEN = "***"
 SECRET_URI_ENV = "ARMEXP_TRACKING_URI"
-#: Seconds to wait for a tracking server's first answer.
+#: Seconds to wait for a tracking server's first answer (at most ``tracking.timeout_s``).
 PROBE_S = 10.0
 #: How long to wait for a store that another process holds locked, and how often to try it.
 BUSY_WAIT_S, BUSY_POLL_S = 60.0, 1.0
 #: Stores this process has opened (a SQLite store created or migrated, a server that answered).
 _opened: set[str] = set()
+T = TypeVar("T")
 
 
 def open_once(uri: str, reading: bool = False) -> None:
@@ -41,16 +44,33 @@ def open_once(uri: str, reading: bool = False) -> None:
     command that only reads (`armexp.diff`), a SQLite store must exist and may be read-only."""
     if uri in _opened:
         return
+    from armexp import remote  # it reads this module's URI helpers
+
     if uri.startswith("sqlite:///"):
         _open_sqlite(uri, reading)
     elif uri.startswith(("http://", "https://")):
-        _probe_server(uri)
+        _probe_server(uri, min(PROBE_S, remote.timeout_s()))
+    elif remote.is_database(uri):
+        remote.probe_database(uri, remote.timeout_s())
+        _opened.add(uri)
 
 
 def is_locked(exc: BaseException) -> bool:
     """Whether ``exc`` is SQLite reporting a locked store (MLflow wraps sqlite3/SQLAlchemy
     errors in several types, so the message decides)."""
     return "locked" in str(exc).lower()
+
+
+def retry(fn: Callable[[], T], attempts: int = 8, delay: float = 0.25) -> T:
+    """Call ``fn`` again when SQLite reports a lock (several jobs writing one store)."""
+    for i in range(attempts):
+        try:
+            return fn()
+        except Exception as exc:
+            if not is_locked(exc) or i == attempts - 1:
+                raise
+            time.sleep(delay * (2**i))
+    raise AssertionError("unreachable")
 
 
 def hide_password(uri: str) -> str:
@@ -80,11 +100,11 @@ def keep_credentials_out(uri: str) -> str:
     return hide_password(uri)
 
 
-def _probe_server(uri: str) -> None:
+def _probe_server(uri: str, timeout: float) -> None:
     """Ask the server's ``/health`` once per process, so an address with no server behind it
-    is one sentence now instead of MLflow's minutes of retries."""
+    is one sentence now instead of MLflow's retries."""
     try:
-        urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=PROBE_S).close()
+        urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=timeout).close()
     except urllib.error.HTTPError:
         pass  # it answered
     except (urllib.error.URLError, OSError) as exc:

@@ -6,7 +6,8 @@ Stages hand data to each other only through MLflow (docs/design.md §1). Every s
 * artifact ``config.yaml``: the full resolved config,
 * tags: ``armexp.stage``, what ran (`armexp.lineage`: git commit and dirty flag inside a git
   checkout, ``armexp.version.<package>``), and
-* a truthful end status: FINISHED, FAILED (with ``armexp.error``) or KILLED (interrupted).
+* a truthful end status: FINISHED, FAILED (with ``armexp.error``) or KILLED (interrupted); a
+  run whose store stopped answering is closed by the next command against it (`armexp.run_end`).
 
 The default store is ``sqlite:///<runs_dir>/mlflow.db`` with artifacts under
 ``<runs_dir>/artifacts``, both relative to the directory armexp is started in.
@@ -26,7 +27,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import mlflow
 from mlflow.entities import Metric, Param, Run
@@ -34,13 +35,13 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
-from armexp import anchor, disk, lineage, liveness, run_ids, run_names, store
+from armexp import anchor, disk, lineage, liveness, remote, run_end, run_ids, run_names, store
 from armexp.config import ConfigError
 from armexp.reads import Reads
 
 STAGE_TAG = "armexp.stage"
 COMMIT_TAG = lineage.COMMIT_TAG
-ERROR_TAG = "armexp.error"
+ERROR_TAG = run_end.ERROR_TAG
 SWEEP_TAG = "armexp.sweep"
 INPUTS_TAG = "armexp.inputs_hash"
 PARENT_TAG = "mlflow.parentRunId"
@@ -50,7 +51,6 @@ KIND_TAG, KIND = "mlflow.experimentKind", "custom_model_development"
 _parents: list[str] = []
 MAX_PARAM_LENGTH = 6000
 
-T = TypeVar("T")
 log = logging.getLogger(__name__)
 logging.getLogger("alembic").setLevel(logging.WARNING)
 # MLflow logs each database error it then raises (a lock, a full disk); armexp reports the error.
@@ -60,7 +60,9 @@ logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
 def store_uri(cfg: DictConfig, reading: bool = False) -> str:
     """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``; a
     SQLite store is created (or migrated) under a lock the first time this process uses it.
-    ``reading``: for a command that only reads, which creates nothing (`store.open_once`)."""
+    ``reading``: for a command that only reads, which creates nothing (`store.open_once`).
+    Requests to a server or database are held to ``tracking.timeout_s`` (`armexp.remote`)."""
+    remote.configure(float(OmegaConf.select(cfg, "tracking.timeout_s", default=remote.DEFAULT_S)))
     if cfg.tracking.uri:
         uri = str(cfg.tracking.uri)
         if f":{store.HIDDEN}@" in uri:
@@ -94,18 +96,8 @@ def artifact_root(cfg: DictConfig) -> str | None:
 
 
 is_lock = store.is_locked
-
-
-def retry(fn: Callable[[], T], attempts: int = 8, delay: float = 0.25) -> T:
-    """Call ``fn`` again when SQLite reports a lock (several jobs writing one store)."""
-    for i in range(attempts):
-        try:
-            return fn()
-        except Exception as exc:
-            if not is_lock(exc) or i == attempts - 1:
-                raise
-            time.sleep(delay * (2**i))
-    raise AssertionError("unreachable")
+retry = store.retry
+RunInterrupted = run_end.RunInterrupted
 
 
 def setup(cfg: DictConfig) -> str:
@@ -212,14 +204,6 @@ class StageResult:
     summary: Mapping[str, Any] = field(default_factory=dict)
 
 
-class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM inside a stage run: the run ``run_id`` is marked KILLED."""
-
-    def __init__(self, run_id: str) -> None:
-        super().__init__(run_id)
-        self.run_id = run_id
-
-
 @contextmanager
 def stage_run(
     cfg: DictConfig,
@@ -277,66 +261,30 @@ def stage_run(
         with liveness.Heartbeat(run.info.run_id, store_uri(cfg)):
             yield run
     except KeyboardInterrupt as exc:
-        _note_error("interrupted")
-        _end_run(run.info.run_id, "KILLED")
-        if isinstance(exc, RunInterrupted):  # a nested stage's run, already named
+        # Says to whoever catches it (the command line) that a run was started, and whether it
+        # is marked KILLED.
+        stopped = run_end.interrupted(run.info.run_id, exc)
+        if stopped is exc:
             raise
-        # Says to whoever catches it (the command line) that a run was started and is KILLED.
-        raise RunInterrupted(run.info.run_id) from None
+        raise stopped from None
     except BaseException as exc:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
-            _end_run(run.info.run_id, "FINISHED")
+            run_end.end_run(run.info.run_id, "FINISHED")
             raise
+        found: Exception
         if disk.is_full(exc):
-            stopped = _fail_on_full_disk(cfg, run.info.run_id, exc)
-            if stopped is exc:  # a nested stage's, already naming its run
-                raise
-            raise stopped from exc
-        _note_error(f"{type(exc).__name__}: {exc}"[:5000])
-        _end_run(run.info.run_id, "FAILED")
-        raise
-    else:
-        _end_run(run.info.run_id, "FINISHED")
-
-
-def _fail_on_full_disk(cfg: DictConfig, run_id: str, exc: BaseException) -> disk.DiskFull:
-    """Mark the run FAILED after a write found its disk full, with the store's reserve freed
-    first (`armexp.disk`) so there is room for it; the `DiskFull` to raise says whether that
-    worked. A nested stage's `DiskFull` names its own run and passes on."""
-    disk.release_reserve(store_uri(cfg))
-    marked = True
-    try:
-        retry(lambda: mlflow.set_tag(ERROR_TAG, f"{type(exc).__name__}: {exc}"[:5000]))
-    except Exception:
-        marked = False
-    try:
-        _end_run(run_id, "FAILED")
-    except Exception:
-        marked = False
-    if isinstance(exc, disk.DiskFull):
-        return exc
-    return disk.DiskFull(disk.reason(exc), run_id, marked)
-
-
-def _note_error(message: str) -> None:
-    """The error tag, best effort: when the failure is the store's (a full disk), the status
-    write that follows matters more than this one."""
-    try:
-        retry(lambda: mlflow.set_tag(ERROR_TAG, message))
-    except Exception as exc:
-        log.warning("could not record the error on the run: %s", exc)
-
-
-def _end_run(run_id: str, status: str) -> None:
-    """`mlflow.end_run`, with the status write retried on a SQLite lock (a reader such as the
-    MLflow UI, or another job, holding the store): end_run pops the active run before it writes,
-    so a failed write is repeated through the client instead of calling end_run again."""
-    try:
-        mlflow.end_run(status=status)
-    except Exception as exc:
-        if not is_lock(exc):
+            found = run_end.fail_on_full_disk(store_uri(cfg), run.info.run_id, exc)
+        elif remote.is_lost(exc):
+            found = run_end.lost(str(cfg.tracking.uri), run.info.run_id, exc)
+        else:
+            run_end.note_error(f"{type(exc).__name__}: {exc}"[:5000])
+            run_end.end_run(run.info.run_id, "FAILED")
             raise
-        retry(lambda: MlflowClient().set_terminated(run_id, status))
+        if found is exc:  # a nested stage's, already naming its run
+            raise
+        raise found from exc
+    else:
+        run_end.end_run(run.info.run_id, "FINISHED")
 
 
 def log_folder(local_dir: str | Path, artifact_path: str | None = None) -> None:

@@ -310,6 +310,9 @@ class TrackingConfig:
     experiment: str = checked("armexp", matches(r".*\S.*", "a non-empty experiment name"))
     runs_dir: str = "runs"
     artifact_root: str | None = None
+    #: Seconds armexp waits for a tracking server or database that does not answer before it
+    #: stops the run (`armexp.remote`); at most an hour (MLflow caps the waits between retries).
+    timeout_s: float = checked(60.0, between(5, 3600))
     #: Set by `armexp <stage> -m`: the sweep's parent run, which every job's run hangs under.
     sweep_run: str | None = None
 

@@ -42,7 +42,7 @@ import pandas as pd
 import yaml
 from omegaconf import DictConfig
 
-from armexp import console, tracking
+from armexp import console, run_end, tracking
 from armexp.agents.rollout import Episode, convergence_metrics, episode_metrics, rollout
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
@@ -123,9 +123,10 @@ def run(composed: DictConfig) -> tracking.StageResult:
                         bar.update(1)
                 table = pd.DataFrame([r for r in records if r["controller"] == entry.label])
                 summary.update(_aggregate(entry.label, table))
-        except BaseException:
+        except BaseException as exc:
             if records:  # an interrupted or failed eval keeps the episodes it ran
-                tracking.log_dataframe(pd.DataFrame(records), "episodes.csv")
+                with run_end.while_stopping(exc):
+                    tracking.log_dataframe(pd.DataFrame(records), "episodes.csv")
             raise
         finally:
             if bar is not None:

@@ -25,7 +25,7 @@ from collections.abc import Callable
 import mlflow
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from armexp import reuse, tracking
+from armexp import reuse, run_end, tracking
 from armexp.baselines import (
     ADAPTIVE,
     BASELINES,
@@ -178,7 +178,8 @@ def run_one(
                 with tracking.parent(parent_id):
                     result = fn(stage_cfg)
             except BaseException as exc:
-                mlflow.set_tag(FAILED_STAGE_TAG, name)
+                with run_end.while_stopping(exc):
+                    mlflow.set_tag(FAILED_STAGE_TAG, name)
                 if isinstance(exc, ConfigError):
                     raise ConfigError(f"the pipeline stopped at {name}: {exc}") from None
                 if not isinstance(exc, KeyboardInterrupt | SystemExit):

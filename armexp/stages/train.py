@@ -31,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
-from armexp import console, disk, liveness, tracking
+from armexp import console, disk, liveness, remote, run_end, tracking
 from armexp.agents.addons import TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
@@ -269,10 +269,12 @@ def _learn(
         )
     except BaseException as exc:
         # Interrupted or failed: keep what was learned so `train.resume` can continue it; on a
-        # full disk the last complete checkpoint stays, as more writes would fail too.
-        if not disk.is_full(exc):
-            stats.flush()
-            checkpoint.save()
+        # full disk or a store that stopped answering the last complete checkpoint stays, as
+        # more writes would fail too.
+        if not disk.is_full(exc) and not remote.is_lost(exc):
+            with run_end.while_stopping(exc):
+                stats.flush()
+                checkpoint.save()
         raise
     finally:
         venv.close()

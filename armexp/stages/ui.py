@@ -3,15 +3,18 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shlex
 import signal
+import socket
 import subprocess
 import sys
 
 from omegaconf import DictConfig
 
 from armexp import console, tracking
+from armexp.config import ConfigError
 
 #: MLflow's UI keeps a "GenAI" or "Machine learning" view; the link names the second, where an
 #: experiment opens on its runs table (a run's params, metrics, artifacts) rather than on traces.
@@ -31,7 +34,47 @@ def ui_command(cfg: DictConfig) -> list[str]:
     return cmd
 
 
+def check_address(host: str, port: int) -> None:
+    """The UI can listen on ``host``:``port``: one sentence (`ConfigError`) when another
+    program listens there (the link printed would open that one), when the port is one only
+    root may take, or when ``host`` is not an address of this machine."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        with socket.socket(family, kind, proto) as s:
+            # As uvicorn does: a port left in TIME_WAIT by a server just stopped is free.
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(address)
+    except socket.gaierror as exc:
+        raise ConfigError(
+            f"ui.host={host} is not allowed: it is not a host name this machine can resolve "
+            f"({exc.strerror}); give an address of this machine, such as 127.0.0.1."
+        ) from None
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            raise ConfigError(
+                f"ui.port={port} is not allowed now: another program already listens on "
+                f"{host}:{port}; stop it, or choose a free port (ui.port={_free_port(host)})."
+            ) from None
+        if exc.errno == errno.EACCES:
+            raise ConfigError(
+                f"ui.port={port} is not allowed: only root may listen on a port below 1024; "
+                f"choose a port from 1024 up (ui.port={_free_port(host)})."
+            ) from None
+        raise ConfigError(
+            f"ui.host={host} is not allowed: the UI cannot listen there ({exc.strerror}); give "
+            "an address of this machine, such as 127.0.0.1."
+        ) from None
+
+
+def _free_port(host: str) -> int:
+    """A port nothing listens on now, to suggest."""
+    with socket.socket(socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)[0][0]) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
 def run(cfg: DictConfig) -> None:
+    check_address(str(cfg.ui.host), int(cfg.ui.port))
     # The experiment exists, with its kind tag, before the UI first shows it.
     experiment_id = tracking.setup(cfg)
     # The interpreter running armexp has MLflow, whether or not its scripts are on PATH.
@@ -46,8 +89,12 @@ def run(cfg: DictConfig) -> None:
     # quiet shutdown (on SIGINT the server re-raises it after shutting down, with a traceback).
     server = subprocess.Popen(cmd, env=env, start_new_session=True)
     try:
-        server.wait()
+        code = server.wait()
     except KeyboardInterrupt:
         os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=60)
         print("armexp ui: stopped")
+        return
+    if code != 0:  # it could not start (its own message is above), or it was killed
+        print(f"armexp ui: the MLflow UI stopped with exit code {code}", file=sys.stderr)
+        raise SystemExit(1)
