@@ -53,6 +53,15 @@ def open_once(uri: str, reading: bool = False) -> None:
     elif remote.is_database(uri):
         remote.probe_database(uri, remote.timeout_s())
         _opened.add(uri)
+    elif not uri.startswith("databricks"):
+        # MLflow's own answer is a traceback, and for file: (its old ./mlruns store, which
+        # MLflow 3 refuses) one that names a folder the user never wrote.
+        raise ConfigError(
+            f"tracking.uri={hide_password(uri)} is not allowed: armexp's runs go to a SQLite "
+            "store (sqlite:///<path>, or tracking.runs_dir), an MLflow server (http:// or "
+            "https://) or a database (postgresql://, mysql://, mssql://); MLflow 3 no longer "
+            "writes the file store (file: or a bare folder)."
+        )
 
 
 def is_locked(exc: BaseException) -> bool:

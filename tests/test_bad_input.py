@@ -179,3 +179,16 @@ def test_a_sweep_that_stops_before_any_job_leaves_no_sweep_run(
     assert client.search_runs(experiments) == []
     (deleted,) = client.search_runs(experiments, run_view_type=ViewType.DELETED_ONLY)
     assert deleted.data.tags["armexp.stage"] == "sweep"
+
+
+# ----------------------------------------------------------------------------- store address
+@pytest.mark.parametrize("uri", ["file:./mlruns", "foo://bar", "./some/folder"])
+def test_a_tracking_uri_no_store_behind_is_one_sentence(
+    uri: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "scenario.duration=0.05", f"tracking.uri={uri}"]) == 2
+    line = one_line(capsys)
+    assert f"tracking.uri={uri} is not allowed" in line
+    assert "sqlite:///" in line and "file store" in line
+    assert not (tmp_path / "mlruns").exists()
