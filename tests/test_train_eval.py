@@ -190,8 +190,10 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     # Anything but the budget would be ignored by a resume: refused, nothing run.
     assert main(["train", f"train.resume={run.info.run_id}", "agent.gamma=0.5", where]) == 2
     assert _runs(runs_dir, "train")[0].info.status == "KILLED"
-    # A larger budget is applied.
-    rc = main(["train", f"train.resume={run.info.run_id}", "agent.max_env_steps=700", where])
+    # The run's own command typed again, with a larger budget: the same config, applied.
+    again = ["controller.gains=paper", *SMALL_TRAIN, "train.checkpoint_every=100000"]
+    resume = [f"train.resume={run.info.run_id}", "agent.max_env_steps=700", where]
+    rc = main(["train", *again, *resume])
     assert rc == 0
     (resumed,) = _runs(runs_dir, "train")
     assert resumed.info.run_id == run.info.run_id and resumed.info.status == "FINISHED"

@@ -184,16 +184,53 @@ def _apply_resume_overrides(original: DictConfig, cfg: DictConfig, run_id: str) 
 
     if not HydraConfig.initialized():
         return
+    differing = _differing(original, cfg)
     for override in HydraConfig.get().overrides.task:
         key = override.partition("=")[0].lstrip("+~")
-        if not key.startswith(RESUME_KEYS):
+        # The run's own command typed again (with train.resume added) changes nothing: only
+        # an override that composes into another config is refused.
+        if not key.startswith(RESUME_KEYS) and differing:
             raise ConfigError(
                 f"{override} is not allowed with train.resume={run_id}: a resumed run keeps the "
-                "config it started with; only its budget (agent.max_env_steps, "
-                "agent.max_minutes, agent.episodes) and tracking.* may change."
+                f"config it started with (this would change {_named(key, differing)}); only "
+                "its budget (agent.max_env_steps, agent.max_minutes, agent.episodes) and "
+                "tracking.* may change."
             )
         if key.startswith("agent."):
             OmegaConf.update(original, key, OmegaConf.select(cfg, key))
+
+
+def _differing(original: DictConfig, cfg: DictConfig) -> list[str]:
+    """The keys train's result depends on (`READS`), outside `RESUME_KEYS`, whose values differ
+    between the run's config and the one the command line composes."""
+
+    def leaves(node: Any, prefix: str) -> dict[str, Any]:
+        if isinstance(node, dict):
+            out: dict[str, Any] = {}
+            for k, v in node.items():
+                out.update(leaves(v, f"{prefix}.{k}"))
+            return out
+        return {prefix: node}
+
+    def values(config: DictConfig) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key in READS.hashed:
+            node = OmegaConf.select(config, key)
+            plain = (
+                OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
+            )
+            out.update(leaves(plain, key))
+        return out
+
+    ours, theirs = values(original), values(cfg)
+    keys = set(ours) | set(theirs)
+    return sorted(k for k in keys if not k.startswith(RESUME_KEYS) and ours.get(k) != theirs.get(k))
+
+
+def _named(key: str, differing: list[str]) -> str:
+    """The override's own key where it is among the changes, else the first few changes."""
+    inside = [k for k in differing if k == key or k.startswith(f"{key}.")]
+    return ", ".join((inside or differing)[:3])
 
 
 def _gains_from(tags: dict[str, str]) -> str:
