@@ -19,6 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from omegaconf import OmegaConf
+
 from armexp.config import ConfigError
 
 #: A run id prefix inside an override's value.
@@ -53,6 +55,8 @@ def precheck(
         cfg = composer.compose(job)
         if runs_job:
             resources.check(cfg, stage, job)
+            if stage in ("train", "pipeline") and OmegaConf.select(cfg, "agent.device"):
+                resources.device_here(str(cfg.agent.device))
             prefixes.update(_prefixes(cfg, prefixes))
     if not runs_job or cfg is None:
         return list(overrides)

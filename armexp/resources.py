@@ -179,3 +179,26 @@ def _as_typed(item: Item, overrides: Sequence[str]) -> str:
         if eq and key == item.key:
             return value
     return str(item.value)
+
+
+def device_here(device: str) -> str:
+    """``agent.device`` where this machine has it: SB3 would fall back to the CPU without a word
+    while the run records the device asked for."""
+    if device in ("cpu", "auto"):
+        return device
+    import torch
+
+    missing = (device.startswith("cuda") and not torch.cuda.is_available()) or (
+        device == "mps" and not torch.backends.mps.is_available()
+    )
+    if missing:
+        raise ConfigError(
+            f"agent.device={device} is not allowed here: torch sees no such device on this "
+            "machine; give cpu, or auto to take a GPU where there is one."
+        )
+    if device.startswith("cuda:") and int(device[5:]) >= torch.cuda.device_count():
+        raise ConfigError(
+            f"agent.device={device} is not allowed here: this machine has "
+            f"{torch.cuda.device_count()} CUDA device(s), numbered from 0."
+        )
+    return device

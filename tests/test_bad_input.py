@@ -192,3 +192,19 @@ def test_a_tracking_uri_no_store_behind_is_one_sentence(
     assert f"tracking.uri={uri} is not allowed" in line
     assert "sqlite:///" in line and "file store" in line
     assert not (tmp_path / "mlruns").exists()
+
+
+def test_a_device_this_machine_lacks_is_one_sentence_before_any_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device")
+    where = f"tracking.runs_dir={tmp_path}"
+    args = ["train", "experiment=smoke", "controller.gains=paper", "agent.device=cuda", where]
+    assert main(args) == 2
+    assert "agent.device=cuda is not allowed here: torch sees no such device" in one_line(capsys)
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    experiments = [e.experiment_id for e in client.search_experiments()]
+    assert client.search_runs(experiments) == []

@@ -14,6 +14,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.compiled import CompiledUpdate
 from armexp.config import ConfigError
+from armexp.resources import device_here
 
 
 class ActorTerm(Protocol):
@@ -188,7 +189,7 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "ent_coef": agent.ent_coef,
         "n_steps": int(agent.n_steps),
         "policy_kwargs": {"net_arch": arch, "optimizer_kwargs": _adam(agent)},
-        "device": str(agent.device),
+        "device": device_here(str(agent.device)),
     }
 
 
