@@ -101,6 +101,8 @@ def assert_failed_cleanly(folder: Path, stage: str, why: str = "the disk is full
     assert run[1] == "FAILED" and run[2] and run[0][:8] in err[0], run
 
 
+# About two minutes on a loaded 2-core machine: the model is written until the disk fills.
+@pytest.mark.slow
 def test_a_full_disk_cuts_no_model_short(tmp_path: Path) -> None:
     """Room for the checkpoint (its save and its copy) and for half of the final model: the
     final model's copy into the store is the write that fails."""

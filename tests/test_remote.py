@@ -36,6 +36,7 @@ def test_the_deadline_sets_mlflows_settings_for_one_command(
 ) -> None:
     from armexp import remote
 
+    remote.reset()  # what an earlier command in this process may have left
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "99")
     remote.configure(60)
     try:
