@@ -21,11 +21,24 @@ import os
 import sys
 import time
 from typing import Any
+from urllib.parse import urlsplit, urlunsplit
 
 from armexp.config import ConfigError
 from armexp.config.schema import TrackingConfig
 from armexp.disk import chain
-from armexp.store import hide_password
+
+#: What a password shows as wherever a store's address is printed or logged.
+HIDDEN = "***"
+
+
+def hide_password(uri: str) -> str:
+    """``uri`` with the password of its user info shown as ``***`` (unchanged without one)."""
+    parts = urlsplit(uri)
+    if parts.password is None:
+        return uri
+    host = parts.netloc.rpartition("@")[2]
+    return urlunsplit(parts._replace(netloc=f"{parts.username}:{HIDDEN}@{host}"))
+
 
 #: Retries after a request's first attempt: at least `RETRIES`, at most MLflow's limit. urllib3
 #: waits before each retry but the first, 2·f, 4·f, 8·f … s, each at most `WAIT_MAX_S`.

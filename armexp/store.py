@@ -22,12 +22,12 @@ from urllib.parse import unquote, urlsplit, urlunsplit
 
 from mlflow.tracking import MlflowClient
 
-from armexp import anchor, disk
+from armexp import anchor, disk, remote
 from armexp.config import ConfigError
+from armexp.remote import hide_password
 
 #: What a hidden password is shown as; `armexp.tracking.store_uri` restores it from
 #: SECRET_URI_ENV.
-HIDDEN = "***"
 SECRET_URI_ENV = "ARMEXP_TRACKING_URI"
 #: Seconds to wait for a tracking server's first answer (at most ``tracking.timeout_s``).
 PROBE_S = 10.0
@@ -44,8 +44,6 @@ def open_once(uri: str, reading: bool = False) -> None:
     command that only reads (`armexp.diff`), a SQLite store must exist and may be read-only."""
     if uri in _opened:
         return
-    from armexp import remote  # it reads this module's URI helpers
-
     if uri.startswith("sqlite:///"):
         _open_sqlite(uri, reading)
     elif uri.startswith(("http://", "https://")):
@@ -80,15 +78,6 @@ def retry(fn: Callable[[], T], attempts: int = 8, delay: float = 0.25) -> T:
                 raise
             time.sleep(delay * (2**i))
     raise AssertionError("unreachable")
-
-
-def hide_password(uri: str) -> str:
-    """``uri`` with the password of its user info shown as ``***`` (unchanged without one)."""
-    parts = urlsplit(uri)
-    if parts.password is None:
-        return uri
-    host = parts.netloc.rpartition("@")[2]
-    return urlunsplit(parts._replace(netloc=f"{parts.username}:{HIDDEN}@{host}"))
 
 
 def keep_credentials_out(uri: str) -> str:

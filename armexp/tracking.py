@@ -65,7 +65,7 @@ def store_uri(cfg: DictConfig, reading: bool = False) -> str:
     remote.configure(float(OmegaConf.select(cfg, "tracking.timeout_s", default=remote.DEFAULT_S)))
     if cfg.tracking.uri:
         uri = str(cfg.tracking.uri)
-        if f":{store.HIDDEN}@" in uri:
+        if f":{remote.HIDDEN}@" in uri:
             real = os.environ.get(store.SECRET_URI_ENV, "")
             if store.hide_password(real) != uri:
                 raise ConfigError(
