@@ -204,8 +204,10 @@ class PaceLine(BaseCallback):
         self.next_at = self.first_wall + self.every_s
 
     def _on_step(self) -> bool:
-        if self.n_calls % 100 == 0 and self.stats.wall() >= self.next_at:
-            self.say(self.stats.wall())
+        if self.n_calls % 100 == 0:
+            wall = self.stats.wall()
+            if wall >= self.next_at:
+                self.say(wall)
         return True
 
     def say(self, wall: float) -> None:
