@@ -87,12 +87,10 @@ def _resolve(value: str, key: str, cfg: Any) -> str:
 def _with_full_ids(override: str, full: dict[str, str]) -> str:
     """``override`` with each prefix of ``full`` in its value replaced by the full id, when its
     key takes run ids."""
-    from armexp import run_ids
+    from armexp.config.run_keys import takes_ids
 
     key, eq, value = override.partition("=")
-    name = key.lstrip("+~")
-    takes_ids = name in run_ids.KEYS or name.startswith(tuple(f"{k}." for k in run_ids.MAPS))
-    if not eq or not takes_ids:
+    if not eq or not takes_ids(key):
         return override
     return f"{key}={_PREFIX.sub(lambda m: full.get(m.group(0), m.group(0)), value)}"
 

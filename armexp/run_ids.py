@@ -17,15 +17,10 @@ from typing import Any
 from omegaconf import DictConfig, ListConfig
 
 from armexp.config import ConfigError
+from armexp.config.run_keys import KEYS, LISTS, MAPS, SINGLE
 
-#: Keys whose value is one run id.
-SINGLE = ("train.tune_run", "train.resume", "eval.train_run", "play.train_run",
-          "report.pipeline_run", "tracking.sweep_run")  # fmt: skip
-#: Keys whose value is a list of run ids.
-LISTS = ("report.eval_runs",)
-#: Keys whose value maps labels to run ids (``eval.tune_runs.pid_itae=<id>``).
-MAPS = ("eval.tune_runs", "play.tune_runs")
-KEYS = (*SINGLE, *LISTS, *MAPS)
+__all__ = ["KEYS", "LISTS", "MAPS", "SINGLE", "given", "is_full", "resolve"]
+
 
 FULL = re.compile(r"[0-9a-f]{32}")
 #: The shortest prefix taken: git's.

@@ -208,3 +208,29 @@ def test_a_device_this_machine_lacks_is_one_sentence_before_any_run(
     client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
     experiments = [e.experiment_id for e in client.search_experiments()]
     assert client.search_runs(experiments) == []
+
+
+# ---------------------------------------------------------------------------------- budgets
+@pytest.mark.parametrize(
+    ("budget", "said"),
+    [
+        (
+            ["agent.max_env_steps=null", "agent.max_minutes=null"],
+            "armexp train: agent.max_env_steps=null with agent.max_minutes=null is not allowed: "
+            "a run needs a budget, agent.max_env_steps ≥ 1 (agent.max_minutes, when set, guards "
+            "the wall time beside it).",
+        ),
+        (
+            ["agent.max_env_steps=0"],
+            "agent.max_env_steps=0 is not allowed: it must be ≥ 1, or null.",
+        ),
+    ],
+)
+def test_a_training_without_a_step_budget_is_one_sentence_and_no_run(
+    budget: list[str], said: str, runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["train", "experiment=demo", *budget, f"tracking.runs_dir={runs_dir}"]) == 2
+    assert said in one_line(capsys)
+    assert not (runs_dir / "mlflow.db").exists() or not MlflowClient(
+        f"sqlite:///{runs_dir}/mlflow.db"
+    ).search_runs(["0"])

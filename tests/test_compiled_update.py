@@ -18,7 +18,7 @@ import torch
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.cloning import DemonstrationCloning
-from armexp.agents.compiled import CompiledUpdate
+from armexp.agents.compiled import CompiledUpdate, steps_per_graph
 from armexp.agents.demonstrations import Demonstration, demonstrations
 from armexp.agents.sac import ResumableSAC, _with_gradients, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
@@ -28,10 +28,13 @@ from armexp.envs.reach import ReachEnv
 
 TINY = ["controller.gains=paper", "agent=sac_smoke", "agent.learning_starts=300",
         "agent.net_arch=[32,32]", "agent.batch_size=64"]  # fmt: skip
-#: learned entropy, n-step returns, the cloning term, two steps per call; fixed entropy, 1-step.
+#: learned entropy, n-step returns, the cloning term, four steps per call (the graph of two, run
+#: twice); fixed entropy, 1-step.
+#: ``eager``: the same function run without compiling it (seconds, in the default set).
 CASES = {
-    "learned-nstep-cloning": (["agent.ent_coef=auto", "agent.n_steps=3"], True, 2),
-    "fixed-onestep": (["agent.ent_coef=0.1", "agent.n_steps=1"], False, 1),
+    "learned-nstep-cloning": (["agent.ent_coef=auto", "agent.n_steps=3"], True, 4, None),
+    "learned-nstep-cloning-eager": (["agent.ent_coef=auto", "agent.n_steps=3"], True, 4, "eager"),
+    "fixed-onestep": (["agent.ent_coef=0.1", "agent.n_steps=1"], False, 1, None),
 }
 CALLS = 3
 TOL = {"rtol": 1e-4, "atol": 1e-6}
@@ -88,7 +91,7 @@ class Runs(dict[str, Run]):
         self.demos = demos
 
     def __missing__(self, case: str) -> Run:
-        overrides, cloning, steps = CASES[case]
+        overrides, cloning, steps, mode = CASES[case]
         models = {g: _filled(g, overrides) for g in ("autograd", "compiled")}
         before = [p.detach().clone() for p in _params(models["autograd"])]
         start = zip(before, _params(models["compiled"]), strict=True)
@@ -100,7 +103,7 @@ class Runs(dict[str, Run]):
         for call in range(CALLS):
             for gradients, model in models.items():
                 if gradients == "compiled" and model._compiled is None:
-                    model._compiled = CompiledUpdate(model)
+                    model._compiled = CompiledUpdate(model, mode=mode)
                     model._compiled.keep_grads = True  # for the comparison of gradients
                 logged[gradients].append(_train(model, steps, seed=call))
         self[case] = Run(models, before, logged, terms, overrides, steps)
@@ -112,9 +115,16 @@ def runs(demos: list[Demonstration]) -> Runs:
     return Runs(demos)
 
 
-# Each case compiles for about a minute on a cold cache: the second runs with the slow set.
+# A compiled case compiles for about a minute on a cold cache: those run with the slow set.
 @pytest.mark.parametrize(
-    "case", ["learned-nstep-cloning", pytest.param("fixed-onestep", marks=pytest.mark.slow)]
+    "case",
+    [
+        "learned-nstep-cloning-eager",
+        *(
+            pytest.param(c, marks=pytest.mark.slow)
+            for c in ["learned-nstep-cloning", "fixed-onestep"]
+        ),
+    ],
 )
 def test_the_compiled_update_is_autograds_update(runs: Runs, case: str) -> None:
     run = runs[case]
@@ -180,6 +190,10 @@ def test_a_compiled_model_saved_loaded_and_continued_is_the_model_continued_in_p
         got_state = _optimizer(loaded, name).state_dict()["state"]
         for index, want in _optimizer(model, name).state_dict()["state"].items():
             assert all(torch.equal(got_state[index][k], want[k]) for k in want)
+
+
+def test_a_call_runs_the_graph_of_at_most_two_steps_as_often_as_it_needs() -> None:
+    assert [steps_per_graph(n) for n in (1, 2, 3, 4, 7, 8)] == [1, 2, 1, 2, 1, 2]
 
 
 def test_the_compiled_update_refuses_what_it_does_not_cover() -> None:

@@ -73,9 +73,9 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
     assert compose("controller.gains=paper").controller.gains.a0 == 668.0
     smoke = compose("experiment=smoke")
     assert smoke.tuner.name == "cso_fast" and smoke.agent.name == "sac_smoke"
-    # The README's first line: sac_quick's aids and networks, with smaller critics, 5 minutes.
+    # The README's first line: sac_quick's aids and networks, smaller critics, a step budget.
     demo, quick = compose("experiment=demo").agent, compose("experiment=quick").agent
-    assert demo.name == "sac_demo" and demo.max_minutes == 5.0
+    assert demo.name == "sac_demo" and demo.max_env_steps == 240_000
     assert demo.critic_arch == [64, 64] and quick.critic_arch is None
     assert demo.aids == quick.aids and demo.net_arch == quick.net_arch == [128, 128]
 
@@ -113,6 +113,11 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
         (["controller.gains.a0=inf"], ["controller.gains.a0=inf", "> 0"]),
         (["agent.max_env_steps=-5"], ["agent.max_env_steps=-5", "≥ 1, or null"]),
         (["agent.max_minutes=-1"], ["agent.max_minutes=-1", "> 0, or null"]),
+        (["agent.max_env_steps=0"], ["agent.max_env_steps=0", "≥ 1, or null"]),
+        (
+            ["agent.max_env_steps=null", "agent.max_minutes=null"],
+            ["agent.max_env_steps=null with agent.max_minutes=null", "needs a budget"],
+        ),
         (["report.fig6_task=z"], ["report.fig6_task='z'", "a, b, c, d"]),
         (["tuner.n_iterations=0"], ["tuner.n_iterations=0", "≥ 1"]),
         (["controller.gains=nonexistent"], ["controller.gains=nonexistent", "one of: paper"]),

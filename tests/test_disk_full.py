@@ -129,6 +129,7 @@ def test_a_store_whose_disk_fills_still_marks_the_run_failed(tmp_path: Path, sta
     assert_failed_cleanly(folder, stage)
 
 
+@pytest.mark.slow
 def test_a_file_size_limit_fails_the_run_with_one_sentence(tmp_path: Path) -> None:
     """``ulimit -f`` of 2 MB: the store (1 MB) fits, the 3 MB model does not."""
     runs = tmp_path / "runs"
@@ -178,6 +179,7 @@ except Exception as exc:
 """
 
 
+@pytest.mark.slow
 def test_the_room_kept_beside_the_store_takes_the_last_writes(tmp_path: Path) -> None:
     """A disk left with no byte free (another writer took them): the run still ends FAILED
     with its error, in the room the store kept (`armexp.disk.RESERVE_BYTES`), given back."""

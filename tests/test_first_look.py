@@ -32,6 +32,7 @@ def _armexp(args: list[str], cwd: Path, **env: str) -> subprocess.CompletedProce
                           capture_output=True, text=True, timeout=900)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_a_pipeline_fits_on_one_screen_with_one_line_per_stage(tmp_path: Path) -> None:
     """From a fresh runs/ folder, with warnings shown as a developer's Python shows them: every
     stage prints one summary line naming its run, the pipeline names its report, and nothing

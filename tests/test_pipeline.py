@@ -112,6 +112,7 @@ def test_pipeline_reuse_skips_stages_whose_inputs_match(pipeline_store: Path) ->
     assert len(_runs(pipeline_store, "train")) == before["train"] + 1
 
 
+@pytest.mark.slow
 def test_reuse_runs_a_stage_again_when_a_key_it_reads_changed(pipeline_store: Path) -> None:
     """``env.reference`` is read by tune (the tuning scenarios' reference): a pipeline with
     ``hold`` must not reuse the tune runs made with ``ramp``, and its tune runs record ``hold``."""
@@ -180,6 +181,7 @@ def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) 
             assert ev.data.metrics[f"{label}.a.max_abs_tau_{j}"] <= limit[j - 1]
 
 
+@pytest.mark.slow
 def test_reuse_resumes_an_interrupted_train_run_instead_of_starting_over(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -255,7 +257,14 @@ def test_computed_torque_is_tuned_under_the_comparisons_criterion() -> None:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("robot", group_options("robot"))
+#: The three-link arm in the default set (the more general case); the others with the slow set.
+@pytest.mark.parametrize(
+    "robot",
+    [
+        pytest.param(r, marks=() if r == "three_link" else pytest.mark.slow)
+        for r in group_options("robot")
+    ],
+)
 def test_computed_torque_through_every_stage_on_every_shipped_robot(
     tmp_path: Path, robot: str, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -111,6 +111,7 @@ def test_report_shows_the_eval_runs_animations(store: Path, tmp_path: Path) -> N
             assert (out / mp4).read_bytes()[4:8] == b"ftyp"
 
 
+@pytest.mark.slow
 def test_report_twice_gives_identical_tables(store: Path, tmp_path: Path) -> None:
     assert _report(store, tmp_path / "one") == 0
     assert _report(store, tmp_path / "two") == 0
@@ -121,6 +122,7 @@ def test_report_twice_gives_identical_tables(store: Path, tmp_path: Path) -> Non
             assert first == second, (name, ext)
 
 
+@pytest.mark.slow
 def test_report_runs_without_simulation_environment_or_agent_code(
     store: Path, tmp_path: Path
 ) -> None:
@@ -461,6 +463,7 @@ def test_out_dir_that_is_not_a_report_is_refused_and_left_as_it_was(
     ]
 
 
+@pytest.mark.slow
 def test_a_failing_report_keeps_the_previous_one(
     store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -483,6 +486,7 @@ def test_a_failing_report_keeps_the_previous_one(
     assert _report(store, out) == 0  # an earlier report's folder is replaced
 
 
+@pytest.mark.slow
 def test_the_readmes_filter_example_runs_as_written(store: Path, tmp_path: Path) -> None:
     """The README's report.filter line, through a real shell (its quoting is the point)."""
 

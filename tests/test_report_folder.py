@@ -20,6 +20,7 @@ def _report(store: Path, *extra: str) -> int:
     return main(["report", f"tracking.runs_dir={store}", *extra])
 
 
+@pytest.mark.slow
 def test_a_users_files_in_the_default_report_folder_are_kept_and_named(
     store: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -71,6 +72,7 @@ main(["report", f"tracking.runs_dir={sys.argv[1]}", f"report.out_dir={sys.argv[2
 """
 
 
+@pytest.mark.slow
 def test_a_report_killed_while_building_leaves_nothing_after_the_next(
     store: Path, tmp_path: Path
 ) -> None:

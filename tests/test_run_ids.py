@@ -118,3 +118,11 @@ def test_diff_takes_prefixes(
         f"armexp diff: run id abcd0000 is not allowed: it begins 2 run ids, {A} (train) and "
         f"{B} (train); give more of the id."
     ]
+
+
+@pytest.mark.parametrize("prefix", ["606274e9", "12345678", "1e5a"])
+def test_a_prefix_that_reads_as_a_number_stays_the_text_typed(prefix: str) -> None:
+    cfg = compose_config([f"eval.train_run={prefix}", f"eval.tune_runs.pid_itae={prefix}",
+                          f"report.eval_runs=[{prefix},abcd1234]"])  # fmt: skip
+    assert cfg.eval.train_run == prefix and cfg.eval.tune_runs.pid_itae == prefix
+    assert list(cfg.report.eval_runs) == [prefix, "abcd1234"]

@@ -280,6 +280,7 @@ def test_a_database_uri_keeps_its_password_out_of_the_logs(
         tracking.store_uri(cfg)
 
 
+@pytest.mark.slow
 def test_sigint_to_a_joblib_sweep_leaves_no_running_job(tmp_path: Path) -> None:
     from armexp import tracking
     from armexp.config import compose_config

@@ -67,6 +67,7 @@ def folders(runs: Path) -> set[str]:
     return {p.name for p in root.iterdir()} if root.is_dir() else set()
 
 
+@pytest.mark.slow
 def test_a_copied_project_trains_into_itself_and_outlives_the_original(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -95,6 +96,7 @@ def test_a_copied_project_trains_into_itself_and_outlives_the_original(
     assert f" in {copy / 'runs' / 'artifacts'}" in line, line
 
 
+@pytest.mark.slow
 def test_a_new_folder_at_a_moved_projects_old_path_leaves_both_whole(tmp_path: Path) -> None:
     """``mv c47 c47_v1; mkdir c47; (cd c47; armexp simulate …)``: each store keeps its own."""
     old, kept = tmp_path / "c47", tmp_path / "c47_v1"
@@ -299,6 +301,7 @@ def _as_reader(command: list[str]) -> list[str]:
     return ["setpriv", "--bounding-set=-dac_override,-dac_read_search", *command]
 
 
+@pytest.mark.slow
 def test_a_read_only_store_still_answers_diff_and_cfg_job(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     a, b = simulate(runs), simulate(runs, seed=1)
@@ -363,6 +366,7 @@ def test_a_store_busy_with_another_writer_says_so_and_is_not_called_damaged(
     assert len(stage_runs(runs, "simulate")) == 1
 
 
+@pytest.mark.slow
 def test_a_store_busy_for_a_while_is_waited_for(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

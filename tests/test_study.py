@@ -92,6 +92,7 @@ def test_a_study_with_a_failed_seed_reports_the_others_and_is_finished_by_a_reru
     assert len(pd.read_csv(runs / "report" / "runs.csv").query("stage == 'eval'")) == 6
 
 
+@pytest.mark.slow
 def test_a_report_mixing_robots_is_one_sentence(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -86,6 +86,7 @@ def test_a_locked_store_does_not_lose_the_final_status(
     assert mlflow.active_run() is None
 
 
+@pytest.mark.slow
 def test_four_processes_racing_on_a_fresh_store_all_finish(tmp_path: Path) -> None:
     """MLflow creates a new SQLite store's schema on first open; processes doing it at once
     must not fail inside the migration nor leave the store half-migrated."""

@@ -4,7 +4,8 @@ For the small networks of this task most of an eager update's time is per-operat
 (graph building, module calls, distribution objects, one optimiser kernel per tensor), not
 arithmetic (`docs/update_paths.md`). This update runs SB3's own modules and `ResumableSAC`'s
 losses as one function of the sampled batches and the policy noise, which ``torch.compile``
-turns into one graph for all of a call's gradient steps:
+turns into one graph of up to two gradient steps (`steps_per_graph`), run as often as a call
+needs:
 
 - gradients come from ``torch.func.grad_and_value`` over ``functional_call`` of SB3's actor
   and critics (``Tensor.backward`` does not trace), so no gradient is written by hand;
@@ -45,6 +46,16 @@ LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 #: inductor assertion on the two products' layouts).
 MODE: str | None = None
 LOGGED = ("ent_coef", "ent_coef_loss", "critic_loss", "actor_loss")
+#: At most this many gradient steps in one graph. Two per graph ran 1.1-1.2x one per graph
+#: (docs/update_paths.md); an unrolled graph compiles in time roughly proportional to its steps,
+#: so a call of more steps runs the graph of two (or of one, for an odd count) several times.
+MAX_STEPS_PER_GRAPH = 2
+
+
+def steps_per_graph(gradient_steps: int) -> int:
+    """The largest divisor of ``gradient_steps`` up to `MAX_STEPS_PER_GRAPH`: every call of a
+    run then uses one graph, compiled once."""
+    return max(k for k in range(1, MAX_STEPS_PER_GRAPH + 1) if gradient_steps % k == 0)
 
 
 def adam(params: Tensors, grads: Tensors, state: list[Tensors], lr: torch.Tensor,
@@ -227,16 +238,16 @@ class CompiledUpdate:
             state.append(self._adam_state(model.ent_coef_optimizer, [model.log_ent_coef]))
             lrs[2] = model.ent_coef_optimizer.param_groups[0]["lr"]
         targets = [p.detach() for p in self.target_params]
-        rows, grads = self.fn(
-            *params,
-            targets,
-            log_alpha,
-            state,
-            torch.tensor(lrs, device=device),
-            batches,
-            noises,
-            terms,
-        )
+        lr = torch.tensor(lrs, device=device)
+        chunk = steps_per_graph(gradient_steps)
+        parts, grads = [], []
+        for k in range(0, gradient_steps, chunk):
+            part, grads = self.fn(
+                *params, targets, log_alpha, state, lr,
+                batches[k : k + chunk], noises[2 * k : 2 * (k + chunk)], terms[k : k + chunk],
+            )  # fmt: skip
+            parts.append(part)
+        rows = torch.cat(parts)
         if grads:
             owners = [*self.actor_params, *self.critic_params]
             owners += [model.log_ent_coef] if log_alpha else []  # type: ignore[list-item]

@@ -27,6 +27,7 @@ from armexp.config.checks import Check, ConfigError, fail
 from armexp.config.errors import translate_error
 from armexp.config.filters import check_filter
 from armexp.config.paths import check_paths, expand_home
+from armexp.config.run_keys import quote_ids, takes_ids
 from armexp.config.schema import SCHEMAS, ArmexpConfig
 from armexp.config.workspace import target_problem, workspace_checks
 
@@ -97,11 +98,15 @@ USER_KEYED = ("eval.tune_runs", "play.tune_runs")
 
 def normalize_overrides(overrides: Sequence[str]) -> list[str]:
     """Accept ``a.b=option`` for the nested group ``a/b`` (``controller.gains=paper``),
-    ``eval.tune_runs.<label>=<id>`` without Hydra's ``++`` (`USER_KEYED`), and ``~`` for the
-    home folder in a folder's key (`armexp.config.paths.expand_home`)."""
+    ``eval.tune_runs.<label>=<id>`` without Hydra's ``++`` (`USER_KEYED`), run ids that Hydra
+    would read as numbers (`armexp.config.run_keys.quote_ids`), and ``~`` for the home folder in
+    a folder's key (`armexp.config.paths.expand_home`)."""
     out = []
     for o in map(expand_home, overrides):
         key, eq, value = o.partition("=")
+        if eq and takes_ids(key):
+            value = quote_ids(value)
+            o = f"{key}={value}"
         if eq and (key in USER_KEYED or key.startswith(tuple(f"{k}." for k in USER_KEYED))):
             out.append(f"++{o}")
             continue
@@ -260,6 +265,14 @@ def _agent_checks(cfg: DictConfig) -> None:
     agent = cfg.get("agent")
     if agent is None or OmegaConf.is_missing(cfg, "agent"):
         return
+    if agent.get("max_env_steps") is None and agent.get("max_minutes") is None:
+        # Episodes alone end a run whose length nobody can foresee (sac_paper's 20000 episodes
+        # run to 20 M steps); a budget in steps makes a seed's result the same on any machine.
+        raise ConfigError(
+            "agent.max_env_steps=null with agent.max_minutes=null is not allowed: a run needs a "
+            "budget, agent.max_env_steps ≥ 1 (agent.max_minutes, when set, guards the wall time "
+            "beside it)."
+        )
     for name, spec in (agent.get("aids") or {}).items():
         target = spec.get("_target_") if isinstance(spec, DictConfig) else None
         if not isinstance(target, str) or "." not in target:
