@@ -140,8 +140,8 @@ def _print(args: Any, pace: Any, finals: dict[int, dict[str, float]],
             tasks = "".join(t for t in "abcd" if m.get(f"{label}.{t}.success", 0.0))
             ok &= rate >= args.target and tasks == "abcd"
             parts.append(f"{label} {rate:.0%} tasks {tasks or '-'}")
-        print(f"seed {s}: {n:,.0f} steps in {wall / 60:.1f} min ({1e3 * wall / n:.2f} ms per step, "
-              f"two jobs at a time) | " + " | ".join(parts))  # fmt: skip
+        print(f"seed {s}: {n:,.0f} steps in {wall / 60:.1f} min ({1e3 * wall / n:.2f} ms per step; "
+              f"up to {args.jobs} jobs at a time) | " + " | ".join(parts))  # fmt: skip
     print(f"target (>= {args.target:.0%} and all four tasks, both controllers, every seed): "
           f"{'PASS' if ok else 'MISS'}; curve and table in {folder}")  # fmt: skip
     return 0

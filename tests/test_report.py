@@ -286,7 +286,8 @@ def test_table_two_names_the_preset_its_aids_and_the_budget_spent(
     for aid in ("1000 planner demonstrations", "behaviour cloning", "DAgger", "averaged"):
         assert aid in aids, aid
     assert _row(md, "| Aided |")[1].startswith("yes: demonstrations, behaviour cloning")
-    assert "≤ 20 min wall time" in _row(md, "| Training budget |")[1]
+    budget = _row(md, "| Training budget |")[1]
+    assert "≤ 400,000 env steps" in budget and "≤ 60 min wall time" in budget
     assert _row(md, "| Env steps used |")[1] == "123,456 (+ 45,678 in planner demonstrations)"
     assert _row(md, "| Episodes used |")[1] == "789"
     assert _row(md, "| Wall time used (min) |")[1] == "20.5"
