@@ -38,7 +38,7 @@ STAGES: dict[str, tuple[str, str]] = {
     ),
     "play": ("armexp.stages.play", "a trained policy on chosen tasks and targets, animated"),
     "report": ("armexp.stages.report", "Tables I-III and Figures 3-6 from stored runs"),
-    "pipeline": ("armexp.stages.pipeline", "tune -> train -> eval -> report under one parent run"),
+    "pipeline": ("armexp.stages.study", "tune -> train -> eval -> report under one parent run"),
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
 }
 

@@ -25,8 +25,6 @@ from armexp.config import ConfigError
 from armexp.envs.reach import ReachSettings
 
 if TYPE_CHECKING:
-    from armexp.agents.cloning import DemonstrationCloning
-    from armexp.agents.demonstrations import Demonstration
     from armexp.agents.sac import ResumableSAC
 
 
@@ -48,28 +46,11 @@ class TrainingContext:
     stats: Any = None
     #: Set by the demonstrations aid: how many planner episodes to plan.
     demo_episodes: int = 0
-    #: Set by the cloning aid, for aids that add to what it clones.
-    cloning: DemonstrationCloning | None = None
-    _planned: list[Demonstration] | None = field(default=None, repr=False)
-
-    def demonstrations(self) -> list[Demonstration]:
-        """The planner's demonstrations, planned on first use (their time counts in the budget)
-        and logged as ``demonstrations/*``."""
-        if self._planned is None:
-            import mlflow
-
-            from armexp.agents.demonstrations import demonstrations
-            from armexp.envs.reach import ReachEnv
-
-            demos = demonstrations(ReachEnv(self.settings), self.demo_episodes, self.seed)
-            reached = sum(d.reason == "reached" for d in demos) / len(demos)
-            mlflow.log_metrics(
-                {"demonstrations/episodes": len(demos), "demonstrations/success_rate": reached,
-                 "demonstrations/steps": sum(map(len, demos)),
-                 "demonstrations/wall_s": self.wall()}
-            )  # fmt: skip
-            self._planned = demos
-        return self._planned
+    #: What the aids hand each other, by the aid module that owns it (typed there, so that
+    #: this module imports none of them): ``armexp.agents.cloning`` puts its
+    #: ``DemonstrationCloning`` here for aids that add to what it clones;
+    #: ``armexp.agents.demonstrations.planned`` keeps the planned episodes here.
+    shared: dict[str, Any] = field(default_factory=dict)
 
 
 class TrainingAddOn:

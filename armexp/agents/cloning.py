@@ -29,7 +29,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from armexp.agents.addons import TrainingAddOn, TrainingContext
-from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations
+from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 
 if TYPE_CHECKING:
     from armexp.agents.sac import ResumableSAC
@@ -136,5 +136,5 @@ class BehaviourCloning(TrainingAddOn):
         self.weight = float(weight)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        ctx.cloning = DemonstrationCloning(ctx.model, ctx.demonstrations(), self.weight, ctx.seed)
+        ctx.shared["cloning"] = DemonstrationCloning(ctx.model, planned(ctx), self.weight, ctx.seed)
         return []

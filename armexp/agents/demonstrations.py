@@ -127,6 +127,23 @@ def fill_replay(model: OffPolicyAlgorithm, demos: list[Demonstration]) -> None:
         buffer.add(obs[t], next_obs[t], actions[t], rewards[t], ends[t], infos)
 
 
+def planned(ctx: TrainingContext) -> list[Demonstration]:
+    """The run's planner demonstrations (``ctx.demo_episodes`` of them), planned on first use
+    (their time counts in the budget), logged as ``demonstrations/*`` and kept in the context."""
+    if "demonstrations" not in ctx.shared:
+        import mlflow
+
+        made = demonstrations(ReachEnv(ctx.settings), ctx.demo_episodes, ctx.seed)
+        reached = sum(d.reason == "reached" for d in made) / len(made)
+        mlflow.log_metrics(
+            {"demonstrations/episodes": len(made), "demonstrations/success_rate": reached,
+             "demonstrations/steps": sum(map(len, made)), "demonstrations/wall_s": ctx.wall()}
+        )  # fmt: skip
+        ctx.shared["demonstrations"] = made
+    demos: list[Demonstration] = ctx.shared["demonstrations"]
+    return demos
+
+
 class PlannerDemonstrations(TrainingAddOn):
     """``episodes`` planner episodes in the replay buffer before training (module doc); a
     resumed run's buffer starts empty and gets none. Privileged: the planner knows the
@@ -142,5 +159,5 @@ class PlannerDemonstrations(TrainingAddOn):
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         ctx.demo_episodes = self.episodes
         if not ctx.resumed:
-            fill_replay(ctx.model, ctx.demonstrations())
+            fill_replay(ctx.model, planned(ctx))
         return []

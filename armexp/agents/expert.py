@@ -204,8 +204,7 @@ class DaggerExpert(TrainingAddOn):
         self.margin, self.lookahead = float(margin), int(lookahead)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        assert ctx.cloning is not None  # `needs` put the cloning aid first
-        ctx.cloning.reserve(int(ctx.model.buffer_size))
-        return [
-            ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), ctx.cloning)
-        ]
+        cloning = ctx.shared.get("cloning")
+        assert isinstance(cloning, DemonstrationCloning)  # `needs` put the cloning aid first
+        cloning.reserve(int(ctx.model.buffer_size))
+        return [ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), cloning)]

@@ -1,5 +1,5 @@
-"""`armexp pipeline`: tune (the policy's controller and every baseline) → train → eval → report
-under one parent run.
+"""One pipeline of `armexp pipeline` (the command's entry is `armexp.stages.study.run`): tune
+(the policy's controller and every baseline) → train → eval → report under one parent run.
 
 Each stage runs as a nested child run of the pipeline's run, wired to its upstream runs by id
 (``train.tune_run``, ``eval.train_run``, ``eval.tune_runs``, ``report.pipeline_run``), so the
@@ -127,16 +127,6 @@ def _with_seed(cfg: DictConfig, seed: int) -> DictConfig:
     with open_dict(out):
         out.seed = seed
     return out
-
-
-def run(cfg: DictConfig) -> tracking.StageResult:
-    """One pipeline, or with ``pipeline.seeds`` a study of one pipeline per seed: the parent run,
-    with the stage runs' ids by step as its summary."""
-    if cfg.pipeline.seeds:
-        from armexp.stages import study
-
-        return study.run(cfg)
-    return run_one(cfg)
 
 
 def run_one(

@@ -28,6 +28,16 @@ FAILED_SEEDS_TAG = "armexp.failed_seeds"
 
 
 def run(cfg: DictConfig) -> tracking.StageResult:
+    """`armexp pipeline`: one pipeline (`armexp.stages.pipeline.run_one`), or with
+    ``pipeline.seeds`` a study of one pipeline per seed; the parent run, with the stage runs'
+    ids by step as its summary. The command lives here so that the study, which runs
+    pipelines, is the only module that knows both."""
+    from armexp.stages import pipeline
+
+    return run_study(cfg) if cfg.pipeline.seeds else pipeline.run_one(cfg)
+
+
+def run_study(cfg: DictConfig) -> tracking.StageResult:
     from armexp.stages import pipeline, report
 
     seeds = [int(s) for s in cfg.pipeline.seeds]
