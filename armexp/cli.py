@@ -201,6 +201,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     import hydra
 
     from armexp import disk, remote, signals, sweeps, workers
+    from armexp.launchers import register_plugins
 
     def job(cfg: Any) -> Any:
         quiet_warnings()  # again here: a sweep's jobs may run in worker processes
@@ -231,6 +232,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             raise SystemExit(1) from None
 
     register_schemas()
+    register_plugins()
     # Launcher configs named like their plugin's schema (conf/hydra/launcher/ray.yaml) are
     # validated against it, which is what they are written for; Hydra warns about the match.
     warnings.filterwarnings("ignore", message=r"(?s).*validated against ConfigStore schema")

@@ -1,7 +1,8 @@
 """Cluster launchers: what a sweep on Ray or SLURM needs, checked before it starts.
 
 The Ray launcher itself is `hydra_plugins.armexp_launcher.ray_launcher.RayLauncher` (Hydra
-loads launchers only from the ``hydra_plugins`` namespace).
+loads launchers only from the ``hydra_plugins`` namespace); `register_plugins` makes sure Hydra
+knows it.
 """
 
 from __future__ import annotations
@@ -63,6 +64,28 @@ def check_launcher(overrides: Sequence[str]) -> None:
     if name == "ray":
         address = _override(overrides, "hydra.launcher.ray.init.address") or "auto"
         _probe_ray(address)
+
+
+def register_plugins() -> None:
+    """Register armexp's Ray launcher with Hydra by its class, before Hydra instantiates a
+    launcher.
+
+    Hydra finds plugins by listing the folders of the ``hydra_plugins`` namespace package
+    (``pkgutil.walk_packages``). In an editable install (``pip install -e``, the README's)
+    setuptools puts the checkout on ``sys.path`` only for a plain layout, which
+    ``armexp.conf`` in ``conf/`` is not; it serves the packages through an import hook
+    (PEP 660) instead, so ``hydra_plugins.armexp_launcher`` is importable but in no folder the
+    scan lists, and ``hydra/launcher=ray`` would stop with "Unknown plugin class" (hydra
+    #2359). A regular install's scan finds the same class; registering it again changes
+    nothing."""
+    from hydra.core.plugins import Plugins
+
+    # The scan first: it re-runs the plugin modules it finds, and the class registered must be
+    # the one the scan left (one entry per launcher in Hydra's list).
+    plugins = Plugins.instance()
+    from hydra_plugins.armexp_launcher.ray_launcher import RayLauncher
+
+    plugins.register(RayLauncher)
 
 
 def _hydra_overrides(overrides: Sequence[str]) -> list[str]:
