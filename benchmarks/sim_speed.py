@@ -138,7 +138,7 @@ def batch_rate(candidates: int, scenarios: int, run_steps: int, repeats: int) ->
     n_cmd = max(1, run_steps // HOLD)
     bound = np.array([0.1, 0.4])
     commands = rng.uniform(-1.0, 1.0, size=(scenarios, n_cmd, n)) * bound
-    seeds = np.arange(scenarios)
+    seeds = np.arange(scenarios, dtype=np.float64)  # as the tuner's scenarios hold them
     trace = np.empty((candidates, scenarios, n_cmd * HOLD, 2 * n))
     model = plant.packed()
 
@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     run_steps = 1_500 if args.quick else 12_000
     ref_steps = 300 if args.quick else 2_000
     repeats = 2 if args.quick else 3
-    cores = numba.config.NUMBA_NUM_THREADS
+    cores = numba.get_num_threads()  # NUMBA_NUM_THREADS: nothing has lowered it yet
 
     print(f"armexp simulator speed  (cpu cores: {os.cpu_count()}, numba {numba.__version__})")
     print("closed loop: paper two-link arm, adaptive controller (paper gains), eq. 40 terms")

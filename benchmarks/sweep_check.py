@@ -44,7 +44,7 @@ def check_seconds(args: list[str]) -> float:
     def stop(*_: Any, **__: Any) -> Any:
         raise _Checked
 
-    sweeps.open_sweep = stop  # type: ignore[assignment]
+    sweeps.open_sweep = stop
     with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()
         try:

@@ -24,14 +24,18 @@ import time
 
 import numba
 import numpy as np
+from omegaconf import DictConfig
 
 from armexp.config import compose_config
 from armexp.sim import reference
 from armexp.stages.tune import build_objective, search_space
 from armexp.tune import cuckoo_search
+from armexp.tune.cuckoo import CuckooResult
+from armexp.tune.objective import TuningObjective
+from armexp.tune.space import SearchSpace
 
 
-def plain_loop_seconds_per_eval(obj, candidates: np.ndarray) -> float:  # type: ignore[no-untyped-def]
+def plain_loop_seconds_per_eval(obj: TuningObjective, candidates: np.ndarray) -> float:
     """One candidate at a time, every scenario through the numpy reference simulator."""
     sc = obj.scenarios
     start = time.perf_counter()
@@ -51,7 +55,9 @@ def plain_loop_seconds_per_eval(obj, candidates: np.ndarray) -> float:  # type: 
     return (time.perf_counter() - start) / len(candidates)
 
 
-def _search(obj, cfg, space):  # type: ignore[no-untyped-def]
+def _search(
+    obj: TuningObjective, cfg: DictConfig, space: SearchSpace
+) -> tuple[CuckooResult, float]:
     t = cfg.tuner
     start = time.perf_counter()
     res = cuckoo_search(

@@ -250,7 +250,7 @@ def _torch_paths(agent: DictConfig, env: DummyVecEnv, skip: set[str]) -> list[Pa
         elif name.startswith("fn-adam"):
             # `CompiledUpdate` (agent.gradients=compiled): Adam written in the graph; with
             # fullgraph and static shapes; xK: the preset's K gradient steps in one graph.
-            full = {} if "full" in name else {"fullgraph": False, "dynamic": None}
+            full: dict[str, Any] = {} if "full" in name else {"fullgraph": False, "dynamic": None}
             model._compiled = CompiledUpdate(model, **full)
             steps = k if name.endswith(f"x{k}") and k > 1 else 1
             paths.append(Path(name, functools.partial(model.train, steps, n), per_call=steps,

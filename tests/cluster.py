@@ -23,6 +23,7 @@ import time
 import urllib.request
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 PG_USER = "postgres"
 
@@ -33,10 +34,10 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def in_netns(command: Sequence[str], timeout: float, **kw: object) -> subprocess.CompletedProcess:
+def in_netns(command: Sequence[str], timeout: float, **kw: Any) -> subprocess.CompletedProcess:
     """``command`` in a new network namespace with loopback up (needs root)."""
     script = 'ip link set lo up && exec "$@"'
-    return subprocess.run(  # type: ignore[call-overload,no-any-return]
+    return subprocess.run(
         ["unshare", "--net", "--", "sh", "-c", script, "sh", *command], timeout=timeout, **kw
     )
 
@@ -119,11 +120,9 @@ def _pg_bin(name: str) -> str:
     return found[-1]
 
 
-def _as_pg(command: Sequence[str], **kw: object) -> subprocess.CompletedProcess:
+def _as_pg(command: Sequence[str], **kw: Any) -> subprocess.CompletedProcess:
     user = pwd.getpwnam(PG_USER)
-    return subprocess.run(  # type: ignore[call-overload,no-any-return]
-        list(command), user=user.pw_uid, group=user.pw_gid, check=True, **kw
-    )
+    return subprocess.run(list(command), user=user.pw_uid, group=user.pw_gid, check=True, **kw)
 
 
 @contextlib.contextmanager

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 SMALL_TUNE = [
     "tuner=cso_fast",
@@ -21,6 +24,16 @@ SMALL_TRAIN = [
     "train.progress=false",
     "env.max_steps=100",
 ]
+
+
+def row_at(frame: pd.DataFrame, key: tuple[Any, ...]) -> pd.Series:
+    """The row of ``frame`` at ``key`` on its MultiIndex: pandas-stubs types
+    ``frame.loc[(a, b)]`` as the cell at row a, column b."""
+    import pandas as pd
+
+    row = frame.loc[key]
+    assert isinstance(row, pd.Series), key
+    return row
 
 
 def pid_baseline() -> str:

@@ -113,6 +113,7 @@ def _kill_one_midway(url: str, stop: threading.Event, killed: dict) -> None:
     while not stop.wait(0.5):
         with contextlib.suppress(Exception):
             exp = client.get_experiment_by_name("armexp")
+            assert exp is not None  # not yet made: look again (suppressed like the rest)
             runs = client.search_runs(
                 [exp.experiment_id],
                 "tags.`armexp.stage` = 'pipeline' and attributes.status = 'RUNNING'",

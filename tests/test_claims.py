@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 
 from armexp.report.claims import claim_check
+from tests.helpers import row_at
 
 TASKS = ("a", "b", "c", "d")
 #: label → (controller, role, criterion, horizon, compare_with)
@@ -59,8 +60,8 @@ def _numbers(episodes: pd.DataFrame) -> pd.DataFrame:
 
 def test_a_clear_win_is_larger_than_claimed_not_a_reproduction() -> None:
     out = _numbers(_episodes(5, {"adaptive": (0.15, 0.08), "pid_itae": (0.8, 1.0)}))
-    conv = out.loc[("faster convergence", "pid_itae")]
-    acc = out.loc[("better accuracy", "pid_itae")]
+    conv = row_at(out, ("faster convergence", "pid_itae"))
+    acc = row_at(out, ("better accuracy", "pid_itae"))
     assert (conv.runs, conv.episodes, acc.episodes) == (5, 4, 24)
     assert conv.improvement == pytest.approx(1 - 0.15 / 0.8, abs=0.02)
     assert conv.ci_low <= conv.improvement <= conv.ci_high
@@ -82,8 +83,8 @@ def test_each_verdict_word_against_a_baseline(
     tau: float, tracking: float, noise: float, conv_verdict: str, acc_verdict: str
 ) -> None:
     out = _numbers(_episodes(8, {"adaptive": (tau, tracking), "pid_itae": (1.0, 1.0)}, noise=noise))
-    assert out.loc[("faster convergence", "pid_itae")].verdict == conv_verdict
-    assert out.loc[("better accuracy", "pid_itae")].verdict == acc_verdict
+    assert row_at(out, ("faster convergence", "pid_itae")).verdict == conv_verdict
+    assert row_at(out, ("better accuracy", "pid_itae")).verdict == acc_verdict
 
 
 def test_one_row_per_claim_and_baseline_each_against_its_own_proposed_side() -> None:
@@ -112,7 +113,7 @@ def test_one_row_per_claim_and_baseline_each_against_its_own_proposed_side() -> 
     assert proposed["computed_torque"].iloc[0] == "adaptive"
     shown = table.shown.set_index("Baseline")
     assert "pid_gaing (pid, gaing over 0.6 s)" in shown.index
-    assert shown.loc["pid_itae (pid, itae over 1.5 s)", "Proposed"].iloc[0] == (
+    assert shown.loc[["pid_itae (pid, itae over 1.5 s)"], "Proposed"].iloc[0] == (
         "adaptive (subsystem_adaptive, itae over 1.5 s)"
     )
     notes = " ".join(table.notes)
@@ -144,10 +145,10 @@ def test_convergence_is_the_time_constant_and_a_task_that_never_decays_is_left_o
     missed = (episodes.task == "b") & (episodes.controller == "pid_itae")
     episodes.loc[missed & (episodes.eval_run == "run1"), "success"] = 0.0
     out = _numbers(episodes)
-    conv = out.loc[("faster convergence", "pid_itae")]
+    conv = row_at(out, ("faster convergence", "pid_itae"))
     assert conv.episodes == 2  # (a), (b): the offset run does not depend on reaching the target
     assert conv.metric == "time_constant"
-    assert out.loc[("better accuracy", "pid_itae")].episodes == 23  # all but (b)
+    assert row_at(out, ("better accuracy", "pid_itae")).episodes == 23  # all but (b)
 
 
 def test_old_eval_runs_read_as_adaptive_against_pid_gaing_without_a_convergence_verdict() -> None:

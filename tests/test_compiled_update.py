@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from omegaconf import DictConfig
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.cloning import DemonstrationCloning
@@ -37,7 +38,7 @@ CASES = {
     "fixed-onestep": (["agent.ent_coef=0.1", "agent.n_steps=1"], False, 1, None),
 }
 CALLS = 3
-TOL = {"rtol": 1e-4, "atol": 1e-6}
+RTOL, ATOL = 1e-4, 1e-6
 
 
 @dataclass
@@ -50,7 +51,7 @@ class Run:
     steps: int
 
 
-def _cfg(gradients: str, overrides: list[str]):  # type: ignore[no-untyped-def]
+def _cfg(gradients: str, overrides: list[str]) -> DictConfig:
     return compose_config([*TINY, *overrides, f"agent.gradients={gradients}"])
 
 
@@ -131,9 +132,9 @@ def test_the_compiled_update_is_autograds_update(runs: Runs, case: str) -> None:
     ours, ref = run.models["compiled"], run.models["autograd"]
     for got, want, was in zip(_params(ours), _params(ref), run.before, strict=True):
         assert not torch.equal(want, was)  # every parameter moved
-        assert torch.allclose(got, want, **TOL), float((got - want).abs().max())
-    trained = [*ref.actor.parameters(), *ref.critic.parameters()]
-    mine = [*ours.actor.parameters(), *ours.critic.parameters()]
+        assert torch.allclose(got, want, rtol=RTOL, atol=ATOL), float((got - want).abs().max())
+    trained: list[torch.Tensor] = [*ref.actor.parameters(), *ref.critic.parameters()]
+    mine: list[torch.Tensor] = [*ours.actor.parameters(), *ours.critic.parameters()]
     if ref.log_ent_coef is not None:
         assert ours.log_ent_coef is not None
         trained, mine = [*trained, ref.log_ent_coef], [*mine, ours.log_ent_coef]

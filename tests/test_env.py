@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -26,7 +27,7 @@ def paper_settings() -> ReachSettings:
     return settings_from_config(compose_config([]))
 
 
-def _with(settings: ReachSettings, **changes: object) -> ReachEnv:
+def _with(settings: ReachSettings, **changes: Any) -> ReachEnv:
     return ReachEnv(dataclasses.replace(settings, **changes))
 
 

@@ -21,6 +21,13 @@ from armexp.envs.workspace import breadth_first_times, fill_unreached, time_to_g
 from tests.helpers import small_sac
 
 
+def _blank_obs(env: ReachEnv) -> np.ndarray:
+    """An observation of zeros, filled in by each test."""
+    shape = env.observation_space.shape
+    assert shape is not None  # a Box always has one
+    return np.zeros(shape)
+
+
 @pytest.fixture(scope="module")
 def env() -> ReachEnv:
     return ReachEnv(settings_from_config(compose_config(["controller.gains=paper"])))
@@ -94,7 +101,7 @@ def test_near_the_target_the_expert_moves_the_tip_straight_at_it_and_its_labels_
         distance = float(np.linalg.norm(error))
         if not 0.01 < distance < expert.approach or segment_hits(tips(q, lengths), target, grown):
             continue
-        obs = np.zeros(env.observation_space.shape)
+        obs = _blank_obs(env)
         obs[TARGET], obs[env.layout.joints] = target, q
         action = expert(obs)[0]
         moved = tips(q + action * step, lengths) - tips(q, lengths)
@@ -122,7 +129,7 @@ def test_inside_its_margin_the_expert_backs_away_from_the_obstacle(env: ReachEnv
     # the way out comes first.
     lengths = np.asarray(env.settings.plant.arm.lengths_array)
     obstacle = np.array([0.50, 1.30, 0.12])
-    obs = np.zeros(env.observation_space.shape)
+    obs = _blank_obs(env)
     obs[TARGET], obs[env.layout.joints] = [0.15, 1.55], [0.46, 1.47]
     here = env.layout.q(obs)
 

@@ -153,8 +153,8 @@ def test_failing_stage_fails_the_parent_and_names_itself(
     assert parent.info.status == "FAILED"
     assert parent.data.tags["armexp.failed_stage"] == "train"
     assert "bogus" in parent.data.tags["armexp.error"]
-    (train,) = _runs(runs, "train")
-    assert train.info.status == "FAILED"
+    (train_run,) = _runs(runs, "train")
+    assert train_run.info.status == "FAILED"
     assert all(r.info.status == "FINISHED" for r in _runs(runs, "tune"))
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from mlflow.tracking import MlflowClient
-from PIL import Image
+from PIL import GifImagePlugin, Image
 
 from armexp.cli import main
 from armexp.render.animation import frame_rows
@@ -31,6 +31,7 @@ def _listed(store: Path, run_id: str, folder: str) -> set[str]:
 
 def _frames(gif: Path) -> int:
     with Image.open(gif) as image:
+        assert isinstance(image, GifImagePlugin.GifImageFile)
         return int(image.n_frames)
 
 

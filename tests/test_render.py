@@ -9,7 +9,7 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 import pytest
-from PIL import Image
+from PIL import GifImagePlugin, Image
 
 from armexp.render import animation
 from armexp.render.animation import Scene, frame_rows, write
@@ -59,6 +59,7 @@ def test_gif_and_mp4_show_the_arm_moving_at_33_fps(tmp_path: Path) -> None:
     assert sorted(paths) == ["gif", "mp4"]
     expected = len(frame_rows(trajectory.t.to_numpy()))
     with Image.open(paths["gif"]) as gif:
+        assert isinstance(gif, GifImagePlugin.GifImageFile)
         assert gif.n_frames == expected == 101
         assert gif.size == (480, 480) and gif.info["loop"] == 0
         assert gif.info["duration"] == 30  # one action period per frame

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import matplotlib.pyplot as plt
 import pandas as pd
@@ -438,7 +438,7 @@ def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
 
     agent = OmegaConf.to_container(compose_config(["agent=sac_quick"]).agent)
     assert isinstance(agent, dict)
-    quick = aids_of(agent)
+    quick = aids_of(cast(dict[str, Any], agent))  # a config's keys are names
     assert [(a.name, a.privileged) for a in quick] == [
         ("demonstrations", True), ("behaviour cloning", True), ("DAgger expert", True),
         ("weight averaging", False),

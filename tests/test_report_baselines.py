@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from armexp.cli import main
-from tests.helpers import log_run
+from tests.helpers import log_run, row_at
 
 SEEDS = (0, 1, 2)
 TASKS = ("a", "b", "c", "d")
@@ -191,6 +191,7 @@ def test_the_claim_check_has_one_verdict_per_claim_and_baseline(report: Path) ->
     assert set(claims.seeds) == {3} and set(claims.runs) == {3}
     # The seeds' tune runs have tuner seeds 0, 1, 2; the gaing PID returned the same gains.
     covers = claims.loc[("pid_gaing", "better accuracy"), "ci_covers"]
+    assert isinstance(covers, str)
     assert "pid_gaing: policy only (identical gains at all 3 tuner seeds)" in covers
     assert "adaptive_gaing: policy and tuning (3 tuner seeds)" in covers
     md = _md(report, "claim_check")
@@ -253,11 +254,11 @@ def test_the_summary_and_the_page_give_verdicts_per_baseline(report: Path) -> No
 
 def test_the_tuning_spread_names_seeds_identical_gains_and_bounds(report: Path) -> None:
     spread = _csv(report, "tuning_spread").set_index(["controller", "criterion"])
-    pid = spread.loc[("pid", "gaing")]
+    pid = row_at(spread, ("pid", "gaing"))
     assert pid.tune_runs == 3 and pid.tuner_seeds == "0 1 2"
     assert pid.distinct_gain_vectors == 1 and bool(pid.identical_gains)
     assert pid.on_bound == "ki_1=lower (3/3)"
-    adaptive = spread.loc[("subsystem_adaptive", "itae")]
+    adaptive = row_at(spread, ("subsystem_adaptive", "itae"))
     assert adaptive.distinct_gain_vectors == 3 and not bool(adaptive.identical_gains)
     assert adaptive.a0_min == pytest.approx(668.0) and adaptive.a0_max == pytest.approx(668 * 1.2)
     assert adaptive.best_min == pytest.approx(0.3) and adaptive.best_max == pytest.approx(0.32)

@@ -106,7 +106,7 @@ def test_multi_task_bootstrap_distribution_matches_loop_implementation() -> None
     # An unstratified (pooled) resampling has a visibly different spread here.
     pooled = scores.ravel()
     rng = np.random.default_rng(0)
-    unstrat = [iqm(rng.choice(pooled, size=pooled.size)) for _ in range(2000)]
+    unstrat = [float(iqm(rng.choice(pooled, size=pooled.size))) for _ in range(2000)]
     assert abs(np.std(unstrat) - np.std(ref)) > 0.2 * np.std(ref)
 
 

@@ -16,6 +16,7 @@ from armexp import tracking
 def _only_run(cfg: DictConfig) -> mlflow.entities.Run:
     client = MlflowClient(tracking.store_uri(cfg))
     exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
     (run,) = client.search_runs([exp.experiment_id])
     return run
 

@@ -122,7 +122,7 @@ def test_eval_logs_per_label_metrics_trajectories_and_controllers(
         for suffix, offset in (("", 0.005), ("_large", 0.05)):
             where = f"trajectories/{label}/b_offset{suffix}.parquet"
             run = pd.read_parquet(_download(store, ev.info.run_id, where, tmp_path / where))
-            e1 = np.hypot(run.q_1 - run.q_d_1, run.q_2 - run.q_d_2).to_numpy()
+            e1 = np.hypot((run.q_1 - run.q_d_1).to_numpy(), (run.q_2 - run.q_d_2).to_numpy())
             assert len(run) == 1020 and e1[0] == pytest.approx(offset * np.sqrt(2))
             again = definition_one(run.t.to_numpy(), e1, offset, 1.0, 1e-4)
             for key, value in again.items():

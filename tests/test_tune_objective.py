@@ -11,12 +11,17 @@ from omegaconf import DictConfig
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
 from armexp.stages.tune import build_objective, search_space
 from armexp.tune import cuckoo_search
-from armexp.tune.objective import ObjectiveSettings, criteria_from_errors, resolved_horizon
+from armexp.tune.objective import (
+    Criteria,
+    ObjectiveSettings,
+    criteria_from_errors,
+    resolved_horizon,
+)
 
 DT = 1e-3
 
 
-def _criteria(trace: np.ndarray, settings: ObjectiveSettings | None = None):  # type: ignore[no-untyped-def]
+def _criteria(trace: np.ndarray, settings: ObjectiveSettings | None = None) -> Criteria:
     err = (0.05 * trace)[None, None, :, None]
     done = np.array([[trace.size]])
     return criteria_from_errors(err, np.array([[0.05]]), DT, settings or ObjectiveSettings(), done)

@@ -19,6 +19,8 @@ cosines and sines come from the angle cache of `armexp.sim.angle_cache`.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
@@ -203,6 +205,14 @@ class Simulator:
         clear_cache(self._work)
         self.diverged = False
 
+    @overload
+    def advance(self, dqd: Array | list[float], n_steps: int, log: Literal[True]) -> Array: ...
+    @overload
+    def advance(
+        self, dqd: Array | list[float], n_steps: int, log: Literal[False] = ...
+    ) -> None: ...
+    @overload
+    def advance(self, dqd: Array | list[float], n_steps: int, log: bool) -> Array | None: ...
     def advance(self, dqd: Array | list[float], n_steps: int, log: bool = False) -> Array | None:
         """Command q̇_d = ``dqd`` for ``n_steps`` controller periods (ramped to it from the last
         command, or held; see `advance`); returns the logged rows when ``log``.
