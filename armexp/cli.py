@@ -52,6 +52,15 @@ INFO_FLAGS = {"--help", "-h", "--hydra-help", "--info", "-i", "--shell-completio
               "--version"}  # fmt: skip
 
 
+def _swept_override(overrides: Sequence[str]) -> str:
+    """``tracking.swept=[…]``: the keys the sweep varies, handed to every job through the
+    config (jobs on other processes or machines see it) for their run names."""
+    from armexp import sweeps
+
+    keys = sorted(sweeps.swept_keys(overrides))
+    return "tracking.swept=[" + ",".join(f"'{k}'" for k in keys) + "]"
+
+
 def usage() -> str:
     lines = [
         "usage: armexp <stage> [key=value ...] [-m] [--cfg job] [--help]",
@@ -245,7 +254,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         f"armexp {stage}",
         *line.flags,
         *normalize_overrides(overrides),
-        *([f"tracking.sweep_run={sweep[1]}"] if sweep is not None else []),
+        *([f"tracking.sweep_run={sweep[1]}", _swept_override(overrides)] if sweep else []),
         f"hydra.job.name={stage}",
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)

@@ -10,7 +10,6 @@ The user's ``<stage>.run_name`` wins.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
@@ -65,19 +64,15 @@ def _span(seeds: Sequence[int]) -> str:
 
 
 def _swept(cfg: DictConfig, stage: str) -> list[str]:
-    """The job's ``key=value`` overrides for the keys its sweep varies, less those the name
-    shows. The swept keys are read from the sweep's run (its ``overrides`` param), so jobs on
-    other processes or machines name themselves alike."""
-    sweep = OmegaConf.select(cfg, "tracking.sweep_run", default=None)
-    if not sweep:
+    """The job's ``key=value`` overrides for the keys its sweep varies (``tracking.swept``, which
+    ``armexp <stage> -m`` hands every job), less those the name shows."""
+    keys = set(OmegaConf.select(cfg, "tracking.swept", default=None) or ())
+    if not keys:
         return []
     from hydra.core.hydra_config import HydraConfig
 
     if not HydraConfig.initialized():
         return []
-    from armexp import tracking
-
-    keys = _swept_keys(tracking.store_uri(cfg), str(sweep))
     shown = SHOWN.get(stage, ())
     out = []
     for override in HydraConfig.get().overrides.task:
@@ -85,17 +80,3 @@ def _swept(cfg: DictConfig, stage: str) -> list[str]:
         if key in keys and key not in shown:
             out.append(override)
     return out
-
-
-@functools.lru_cache(maxsize=8)
-def _swept_keys(uri: str, sweep_run: str) -> frozenset[str]:
-    from mlflow.tracking import MlflowClient
-
-    from armexp import tracking
-    from armexp.sweeps import swept_keys
-
-    try:
-        run = tracking.retry(lambda: MlflowClient(uri).get_run(sweep_run))
-    except Exception:  # the name is a convenience: a sweep run out of reach leaves it plain
-        return frozenset()
-    return frozenset(swept_keys(run.data.params.get("overrides", "").split()))

@@ -11,7 +11,7 @@ demonstrated states directly, as in DDPGfD/TD3+BC (Nair et al., 2018; Fujimoto &
 with B SAC's replayed batch, D a batch of demonstrated states s_d and planner actions a_d, and μ
 the actor's deterministic (squashed mean) action. Scaling by mean |Q| makes ``w`` independent of
 the reward's scale, as TD3+BC's normalisation does. The term is one of the model's
-`~armexp.agents.sac.ActorTerm`s: each update adds its gradient to that of SAC's actor loss
+`~armexp.agents.terms.ActorTerm`s: each update adds its gradient to that of SAC's actor loss
 before the actor's optimiser step.
 
 With ``capacity`` > 0, D also holds up to that many further labelled steps (`add`, the newest
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 class DemonstrationCloning:
     """Adds the behaviour-cloning loss of the reached ``demos`` to every actor update of
     ``model`` (a batch of ``model.batch_size`` demonstrated steps each): an
-    `~armexp.agents.sac.ActorTerm`."""
+    `~armexp.agents.terms.ActorTerm`."""
 
     def __init__(
         self,

@@ -26,16 +26,58 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch
 import torch.nn.functional as F
 from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import ContinuousCritic
+from stable_baselines3.common.vec_env import VecNormalize
+from stable_baselines3.sac.policies import Actor
 from torch import nn
 from torch.func import functional_call, grad_and_value
 
-if TYPE_CHECKING:
-    from armexp.agents.sac import ResumableSAC
+from armexp.agents.terms import ActorTerm
+
+
+class SACModel(Protocol):
+    """What this update reads of the model it updates (`armexp.agents.sac.ResumableSAC`, which
+    imports this module: a protocol instead of that class keeps the import one way)."""
+
+    @property
+    def actor(self) -> Actor: ...
+    @property
+    def critic(self) -> ContinuousCritic: ...
+    @property
+    def critic_target(self) -> ContinuousCritic: ...
+    @property
+    def plain_update(self) -> bool: ...
+    @property
+    def observation_space(self) -> spaces.Space[Any]: ...
+    @property
+    def action_space(self) -> spaces.Space[Any]: ...
+    @property
+    def ent_coef_optimizer(self) -> torch.optim.Optimizer | None: ...
+    @property
+    def log_ent_coef(self) -> torch.Tensor | None: ...
+    @property
+    def ent_coef_tensor(self) -> torch.Tensor: ...
+    @property
+    def target_entropy(self) -> str | float: ...
+    @property
+    def tau(self) -> float: ...
+    @property
+    def gamma(self) -> float: ...
+    @property
+    def replay_buffer(self) -> ReplayBuffer | None: ...
+    @property
+    def _vec_normalize_env(self) -> VecNormalize | None: ...
+    @property
+    def device(self) -> torch.device: ...
+    @property
+    def actor_terms(self) -> list[ActorTerm]: ...
+
 
 Tensors = list[torch.Tensor]
 Pair = tuple[torch.Tensor, torch.Tensor]  # an actor term's states and actions
@@ -91,7 +133,7 @@ class CompiledUpdate:
     #: Also keep the last step's gradients in the parameters' ``.grad`` (for tests).
     keep_grads = False
 
-    def __init__(self, model: ResumableSAC, mode: str | None = MODE, **options: Any) -> None:
+    def __init__(self, model: SACModel, mode: str | None = MODE, **options: Any) -> None:
         # One graph or an error (no silent graph breaks); shapes fixed per batch size and
         # steps per call, so a call never recompiles after the first.
         options = {"fullgraph": True, "dynamic": False, **options}
@@ -108,7 +150,7 @@ class CompiledUpdate:
         )
 
     @staticmethod
-    def supports(model: ResumableSAC) -> str | None:
+    def supports(model: SACModel) -> str | None:
         """None if this update covers ``model``, else why not (one phrase)."""
         if not model.plain_update:
             return "gSDE, delayed target updates and batch norm are not covered"

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import torch
@@ -13,31 +13,9 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.compiled import CompiledUpdate
+from armexp.agents.terms import ActorTerm
 from armexp.config import ConfigError
 from armexp.resources import device_here
-
-
-class ActorTerm(Protocol):
-    """A loss that SAC's actor update adds to its own (Algorithm 1, line 14), on states of the
-    term's choosing (the cloning aid, `armexp.agents.cloning`)."""
-
-    def batch(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """States (k, d) and actions (k, n) for this update."""
-        ...
-
-    def value(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """The term from the actor's deterministic action ``mode`` (k, n) at the states, the
-        batch's ``actions`` and the critics' (smaller) value of them ``q`` (k,), no gradient;
-        without side effects (a compiled update traces it)."""
-        ...
-
-    def record(self, loss: float) -> None:
-        """Log one update's `value`."""
-        ...
-
-    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """`value`, recorded (the eager updates)."""
-        ...
 
 
 class ResumableSAC(SAC):

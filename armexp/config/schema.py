@@ -315,6 +315,9 @@ class TrackingConfig:
     timeout_s: float = checked(60.0, between(5, 3600))
     #: Set by `armexp <stage> -m`: the sweep's parent run, which every job's run hangs under.
     sweep_run: str | None = None
+    #: Set by `armexp <stage> -m`: the keys the sweep varies, whose values each job's run name
+    #: shows (`armexp.run_names`).
+    swept: list[str] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------------- stages
