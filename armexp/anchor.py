@@ -26,9 +26,8 @@ from urllib.parse import urlsplit
 from urllib.request import url2pathname
 
 from armexp.config import ConfigError
+from armexp.tags import ANCHOR_TAG
 
-#: The experiment tag that says whether its artifact location follows the store.
-ANCHOR_TAG = "armexp.artifact_root"
 #: Values of `ANCHOR_TAG`: in the store's own ``artifacts`` folder, or where the user chose.
 STORE, GIVEN = "store", "given"
 #: The folder beside the database that holds a store's artifacts.

@@ -10,6 +10,7 @@ from mlflow.entities import Run
 
 from armexp.config import ConfigError
 from armexp.lineage import COMMIT_TAG, DIRTY_TAG, VERSION_TAG
+from armexp.tags import STAGE_TAG
 
 USAGE = "usage: armexp diff <run id> <run id> [tracking.runs_dir=... | tracking=server ...]"
 #: How a value absent from one run is shown.
@@ -52,7 +53,7 @@ def diff_lines(ra: Run, rb: Run) -> list[str]:
 
     def ran(run: Run) -> dict[str, str]:
         tags = run.data.tags
-        keep = ("armexp.stage", COMMIT_TAG, DIRTY_TAG)
+        keep = (STAGE_TAG, COMMIT_TAG, DIRTY_TAG)
         return {k: v for k, v in tags.items() if k in keep or k.startswith(VERSION_TAG)}
 
     code = _changed(ran(ra), ran(rb))

@@ -26,13 +26,12 @@ from armexp import tracking
 from armexp.baselines import CONFIG
 from armexp.config import ConfigError
 from armexp.sim.controllers import without_adaptation as _without_adaptation
+from armexp.tags import CRITERION_TAG, HORIZON_TAG
 from armexp.tune.objective import resolved_horizon
 
 #: The tune run's param and tags that say what it was tuned under.
 CRITERION_PARAM = "tuner.objective.criterion"
 HORIZON_PARAM = "tuner.objective.horizon"
-CRITERION_TAG = "armexp.criterion"
-HORIZON_TAG = "armexp.horizon"
 #: What a tune run without a criterion was tuned under: the paper's W over 0.6 s.
 OLD_CRITERION, OLD_HORIZON = "gaing", 0.6
 

@@ -8,10 +8,8 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
-COMMIT_TAG = "armexp.git_commit"
-DIRTY_TAG = "armexp.git_dirty"
-#: ``armexp.version.<distribution>`` per package of `PACKAGES`.
-VERSION_TAG = "armexp.version."
+from armexp.tags import COMMIT_TAG, DIRTY_TAG, VERSION_TAG
+
 PACKAGES = ("armexp", "torch", "stable-baselines3", "gymnasium", "mlflow", "hydra-core",
             "numba", "numpy")  # fmt: skip
 

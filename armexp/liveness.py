@@ -18,12 +18,10 @@ from pathlib import Path
 from mlflow.entities import Run
 from mlflow.tracking import MlflowClient
 
+from armexp.tags import HEARTBEAT_TAG, PROCESS_TAG
+
 log = logging.getLogger(__name__)
 
-HEARTBEAT_TAG = "armexp.heartbeat"
-#: ``host:pid:start`` of the process running a stage: on the same host, a run whose process is
-#: gone is known dead at once, without waiting `STALE_S`.
-PROCESS_TAG = "armexp.process"
 #: A running stage writes its heartbeat this often (s); a RUNNING run silent for STALE_S is
 #: taken as one whose process died.
 HEARTBEAT_S = 30.0

@@ -19,8 +19,8 @@ from mlflow.tracking import MlflowClient
 
 from armexp import disk, remote
 from armexp.store import is_locked, retry
+from armexp.tags import ERROR_TAG
 
-ERROR_TAG = "armexp.error"
 log = logging.getLogger(__name__)
 
 

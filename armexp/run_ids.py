@@ -18,6 +18,7 @@ from omegaconf import DictConfig, ListConfig
 
 from armexp.config import ConfigError
 from armexp.config.run_keys import KEYS, LISTS, MAPS, SINGLE
+from armexp.tags import STAGE_TAG
 
 __all__ = ["KEYS", "LISTS", "MAPS", "SINGLE", "given", "is_full", "resolve"]
 
@@ -68,7 +69,7 @@ def resolve(client: Any, value: str, key: str, store: str) -> str:
     if not found:
         raise _refuse(key, text, f"no run id in the store {store} begins with {text}")
     if len(found) > 1:
-        named = [f"{r.info.run_id} ({r.data.tags.get('armexp.stage') or 'not armexp'})"
+        named = [f"{r.info.run_id} ({r.data.tags.get(STAGE_TAG) or 'not armexp'})"
                  for r in sorted(found, key=lambda r: r.info.run_id)[:SHOWN]]  # fmt: skip
         more = " and more" if len(found) > SHOWN else ""
         listed = ", ".join(named[:-1]) + f" and {named[-1]}" if not more else ", ".join(named)

@@ -14,8 +14,8 @@ from collections.abc import Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-#: The tag with the agent config group option a policy was trained with (train and eval runs).
-AGENT_PRESET_TAG = "armexp.agent_preset"
+from armexp.tags import AGENT_PRESET_TAG
+
 #: Config keys each stage's name shows already; a sweep over one of them adds no suffix.
 SHOWN: dict[str, tuple[str, ...]] = {
     "simulate": ("controller", "controller.name", "scenario", "scenario.kind", "seed"),

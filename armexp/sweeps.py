@@ -16,6 +16,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 
+from armexp.tags import SWEEP_STAGE_TAG
+
 
 def _ours(overrides: Sequence[str]) -> list[Override]:
     """The parsed overrides of armexp's config: Hydra's own (``hydra/launcher=…``,
@@ -83,7 +85,7 @@ def open_sweep(
             run_name=f"sweep-{stage}",
             tags={
                 tracking.STAGE_TAG: "sweep",
-                "armexp.sweep_stage": stage,
+                SWEEP_STAGE_TAG: stage,
                 liveness.HEARTBEAT_TAG: f"{time.time():.0f}",
                 liveness.PROCESS_TAG: liveness.process_identity(),
             },

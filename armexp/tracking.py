@@ -38,13 +38,8 @@ from omegaconf import DictConfig, OmegaConf
 from armexp import anchor, disk, lineage, liveness, remote, run_end, run_ids, run_names, store
 from armexp.config import ConfigError
 from armexp.reads import Reads
+from armexp.tags import ERROR_TAG, INPUTS_TAG, PARENT_TAG, STAGE_TAG, SWEEP_TAG
 
-STAGE_TAG = "armexp.stage"
-COMMIT_TAG = lineage.COMMIT_TAG
-ERROR_TAG = run_end.ERROR_TAG
-SWEEP_TAG = "armexp.sweep"
-INPUTS_TAG = "armexp.inputs_hash"
-PARENT_TAG = "mlflow.parentRunId"
 #: MLflow's experiment kind: the UIs that read it open a "Machine learning" experiment on its runs
 #: table, not on the GenAI overview of traces, which armexp never logs.
 KIND_TAG, KIND = "mlflow.experimentKind", "custom_model_development"

@@ -22,9 +22,8 @@ import yaml
 from mlflow.entities import Run
 
 from armexp.report.runs import metric_value
+from armexp.tags import AGENT_PRESET_TAG, STOP_REASON_TAG
 
-PRESET_TAG = "armexp.agent_preset"
-STOP_TAG = "armexp.stop_reason"
 #: Modules whose add-ons use the planner's or the obstacles' privileged knowledge, for aids
 #: composed from config lists (``_target_``) rather than agent keys.
 PRIVILEGED_MODULES = (
@@ -212,7 +211,7 @@ def agent_info(train_id: str, run: Run | None, cfg: Mapping[str, Any] | None) ->
     agent = agent or _from_params(params, "agent.")
     train = dict(cfg["train"]) if cfg and isinstance(cfg.get("train"), Mapping) else {}
     train = train or _from_params(params, "train.")
-    preset = tags.get(PRESET_TAG) or params.get("agent.name") or str(agent.get("name") or "?")
+    preset = tags.get(AGENT_PRESET_TAG) or params.get("agent.name") or str(agent.get("name") or "?")
     spent = {}
     for key, names in SPENT_METRICS.items():
         for name in names:
@@ -224,7 +223,7 @@ def agent_info(train_id: str, run: Run | None, cfg: Mapping[str, Any] | None) ->
         preset=preset,
         aids=aids_of(agent, train),
         spent=spent,
-        stop_reason=tags.get(STOP_TAG, ""),
+        stop_reason=tags.get(STOP_REASON_TAG, ""),
         status=run.info.status,
     )
 

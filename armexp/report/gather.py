@@ -21,9 +21,10 @@ import yaml
 
 from armexp.config import ConfigError
 from armexp.report import labels, tables, tuning
-from armexp.report.agent import PRESET_TAG, AgentInfo, agent_info, caption
-from armexp.report.labels import GAINS_TAG, Label
+from armexp.report.agent import AgentInfo, agent_info, caption
+from armexp.report.labels import Label
 from armexp.report.runs import TASKS, TRAIN_RUN_TAG, Reader, Selection, metric_value
+from armexp.tags import ADAPTIVE_GAINS_TAG, AGENT_PRESET_TAG, COMMIT_TAG, STAGE_TAG
 
 #: What `armexp eval` animates: ``animations/<label>/<task>.<format>`` artifacts.
 ANIMATIONS_DIR = "animations"
@@ -36,7 +37,7 @@ def agents_of(selection: Selection, configs: dict[str, Any]) -> dict[str, AgentI
     for ev in selection.evals:
         tid = ev.data.tags.get(TRAIN_RUN_TAG, "")
         info = agent_info(tid, selection.trains.get(tid), configs.get(tid))
-        if ev.data.tags.get(GAINS_TAG) == "config":
+        if ev.data.tags.get(ADAPTIVE_GAINS_TAG) == "config":
             info.gains = _gains_label(ev)
         out[ev.info.run_id] = info
     return out
@@ -209,7 +210,7 @@ def context_of(
 def training_curves(selection: Selection, reader: Reader) -> dict[str, dict[str, pd.DataFrame]]:
     curves = {}
     for run_id, run in sorted(selection.trains.items()):
-        preset = run.data.tags.get(PRESET_TAG) or run.data.params.get("agent.name", "?")
+        preset = run.data.tags.get(AGENT_PRESET_TAG) or run.data.params.get("agent.name", "?")
         label = f"{preset}, seed {run.data.params.get('seed', '?')} ({run_id[:8]})"
         curves[label] = {
             "success": reader.history(run_id, "rollout/success_rate_100"),
@@ -242,7 +243,7 @@ def runs_table(selection: Selection, agents: dict[str, AgentInfo]) -> pd.DataFra
     rows = []
     for run in selection.all_runs:
         p = run.data.params
-        stage = run.data.tags.get("armexp.stage", "")
+        stage = run.data.tags.get(STAGE_TAG, "")
         info = agents.get(run.info.run_id) if stage == "eval" else by_train.get(run.info.run_id)
         rows.append(
             {
@@ -255,7 +256,7 @@ def runs_table(selection: Selection, agents: dict[str, AgentInfo]) -> pd.DataFra
                 "obstacles": p.get("obstacles.name", ""),
                 "agent": info.preset if info else "",
                 "aided": ("yes" if info.aided else "no") if info and info.known else "",
-                "git_commit": run.data.tags.get("armexp.git_commit", "")[:10],
+                "git_commit": run.data.tags.get(COMMIT_TAG, "")[:10],
             }
         )
     return pd.DataFrame(rows).drop_duplicates("run_id")

@@ -31,16 +31,12 @@ import pandas as pd
 from mlflow.entities import Run
 
 from armexp.report.runs import PID_TUNE_RUN_TAG, TUNE_RUN_PREFIX, TUNE_RUN_TAG
+from armexp.tags import ADAPTIVE_GAINS_TAG, CRITERION_TAG, HORIZON_TAG
 
 #: The artifact in which an eval run names its labels.
 CONTROLLERS_FILE = "controllers.yaml"
 #: Roles in the order tables list them.
 ROLES = ("proposed", "reference", "ablation", "baseline")
-#: Tune-run tags: the tuning criterion (``gaing``, ``itae``, …) and its horizon in seconds.
-CRITERION_TAG = "armexp.criterion"
-HORIZON_TAG = "armexp.horizon"
-#: Where an eval run's adaptive gains came from (``tuned`` or ``config``).
-GAINS_TAG = "armexp.adaptive_gains"
 #: Old eval runs: the PID's label as stored, and the name it is reported under.
 OLD_PID, OLD_PID_NAME = "pid", "pid_gaing"
 #: What old runs and old tune runs were tuned under (the paper's objective, tuner=cso_paper).
@@ -186,7 +182,7 @@ def _old(
         is_own = stored == own
         tune_id = tags.get(TUNE_RUN_TAG if is_own else PID_TUNE_RUN_TAG, "")
         configured = (
-            tags.get(GAINS_TAG) == CONFIGURED
+            tags.get(ADAPTIVE_GAINS_TAG) == CONFIGURED
             if is_own
             else str(params.get("eval.pid_gains", "tuned")) == CONFIGURED
         )

@@ -24,17 +24,16 @@ from mlflow.tracking import MlflowClient
 
 from armexp import run_ids
 from armexp.config import ConfigError
+from armexp.tags import (
+    PARENT_TAG,
+    PID_TUNE_RUN_TAG,
+    STAGE_TAG,
+    TRAIN_RUN_TAG,
+    TUNE_RUN_PREFIX,
+    TUNE_RUN_TAG,
+)
 
-STAGE_TAG = "armexp.stage"
-PARENT_TAG = "mlflow.parentRunId"
 TASKS = ("a", "b", "c", "d")
-TRAIN_RUN_TAG = "armexp.train_run"
-#: ``armexp.tune_run.<label>``: the tune run whose gains an eval run's label used.
-TUNE_RUN_PREFIX = "armexp.tune_run."
-#: The policy's own controller's tune run (every eval run; the only one before per-label tags).
-TUNE_RUN_TAG = "armexp.tune_run"
-#: Eval runs made before per-label tags: the PID baseline's tune run.
-PID_TUNE_RUN_TAG = "armexp.pid_tune_run"
 
 
 def tune_run_ids(tags: dict[str, str]) -> list[str]:

@@ -23,10 +23,8 @@ from armexp.report import labels, stats
 from armexp.report.labels import Label
 from armexp.report.runs import Reader, Selection
 from armexp.report.tables import Table, fmt
+from armexp.tags import GAINS_ON_BOUND_TAG
 
-#: The tune stage's tag: the gains on a bound of the search box (``name=lower|upper`` joined by
-#: ", "; ``none``).
-GAINS_ON_BOUND_TAG = "armexp.gains_on_bound"
 ADAPTIVE = "subsystem_adaptive"
 
 

@@ -51,12 +51,10 @@ from armexp.config import ConfigError
 from armexp.gains import Gains, criterion_of, resolve, run_criterion, run_horizon, tuned
 from armexp.gains import without_adaptation as adaptation_off
 from armexp.stages.train import TUNE_RUN_TAG
+from armexp.tags import ADAPTIVE_GAINS_TAG, TRAIN_RUN_TAG
 
 log = logging.getLogger(__name__)
 
-TRAIN_RUN_TAG = "armexp.train_run"
-#: Where the policy's own controller's gains came from: ``tuned`` (the policy's) or ``config``.
-GAINS_TAG = "armexp.adaptive_gains"
 #: The eval run's artifact that describes every label (`Entry.record`).
 CONTROLLERS_FILE = "controllers.yaml"
 
@@ -131,7 +129,7 @@ def load_policy(cfg: DictConfig, section: str) -> Policy:
     train_cfg.tasks = cfg.tasks
     trained_with = str(train_cfg.controller.name)
     source = str(cfg[section].adaptive_gains)
-    tags = {TRAIN_RUN_TAG: train_id, GAINS_TAG: source}
+    tags = {TRAIN_RUN_TAG: train_id, ADAPTIVE_GAINS_TAG: source}
     if source == CONFIG:
         if str(cfg.controller.name) != trained_with:
             raise ConfigError(

@@ -37,10 +37,9 @@ from armexp.baselines import (
 from armexp.config import ConfigError, validate
 from armexp.gains import criterion_of, with_criterion
 from armexp.reads import Reads
+from armexp.tags import FAILED_STAGE_TAG, RESUMED_PREFIX, REUSED_PREFIX, RUN_PREFIX
 
 log = logging.getLogger(__name__)
-
-FAILED_STAGE_TAG = "armexp.failed_stage"
 
 
 def controller_config(cfg: DictConfig, controller: str) -> DictConfig:
@@ -160,7 +159,7 @@ def run_one(
                 found = reuse.reusable(stage_cfg, reads)
                 if found:
                     print(f"pipeline: {name} reuses run {found}")
-                    mlflow.set_tag(f"armexp.reused.{name}", found)
+                    mlflow.set_tag(f"{REUSED_PREFIX}{name}", found)
                     ids[name] = found
                     return found
             print(f"pipeline: {name} ...")
@@ -176,7 +175,7 @@ def run_one(
                     print(f"pipeline: {name} failed: {type(exc).__name__}: {exc}")
                 raise
             ids[name] = result.run_id
-            mlflow.set_tag(f"armexp.run.{name}", ids[name])
+            mlflow.set_tag(f"{RUN_PREFIX}{name}", ids[name])
             return ids[name]
 
         for tune_step, tune_cfg in tune_cfgs.items():
@@ -187,7 +186,7 @@ def run_one(
             stopped = reuse.resumable(cfg, train.READS) if cfg.pipeline.reuse else None
             if stopped and not reuse.reusable(cfg, train.READS):
                 print(f"pipeline: train resumes the interrupted run {stopped}")
-                mlflow.set_tag("armexp.resumed.train", stopped)
+                mlflow.set_tag(RESUMED_PREFIX + "train", stopped)
                 cfg.train.resume = stopped
                 step("train", train.READS, cfg, lambda c: train.resume(c, check_overrides=False))
                 cfg.train.resume = None

@@ -23,8 +23,8 @@ from armexp.report import folder
 from armexp.report.folder import MARKER
 from armexp.report.page import build
 from armexp.report.runs import Reader, select
+from armexp.tags import REPORT_RUNS_TAG
 
-REPORT_RUNS_TAG = "armexp.report_runs"
 __all__ = ["MARKER", "REPORT_RUNS_TAG", "out_dir", "run"]
 
 

@@ -22,9 +22,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from armexp import run_names, tracking
 from armexp.config import ConfigError
-
-STUDY_TAG = "armexp.study"
-FAILED_SEEDS_TAG = "armexp.failed_seeds"
+from armexp.tags import FAILED_SEEDS_TAG, RUN_PREFIX, STUDY_TAG
 
 
 def run(cfg: DictConfig) -> tracking.StageResult:
@@ -85,7 +83,7 @@ def run_study(cfg: DictConfig) -> tracking.StageResult:
             cfg.report.seeds = seeds
         with tracking.parent(parent_id):
             ids["report"] = report.run(cfg).run_id
-        mlflow.set_tag("armexp.run.report", ids["report"])
+        mlflow.set_tag(RUN_PREFIX + "report", ids["report"])
         summary: dict[str, Any] = {"runs": ids, "failed_seeds": failed}
         mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(summary)), "runs.yaml")
         print(

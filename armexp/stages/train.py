@@ -52,14 +52,16 @@ from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.gains import resolve
 from armexp.reads import Reads
+from armexp.tags import (
+    AGENT_PRESET_TAG,
+    GAINS_SOURCE_TAG,
+    RESUMED_TAG,
+    STOP_REASON_TAG,
+    TUNE_RUN_TAG,
+)
 
 log = logging.getLogger(__name__)
 
-TUNE_RUN_TAG = "armexp.tune_run"
-GAINS_SOURCE_TAG = "armexp.gains_source"
-RESUMED_TAG = "armexp.resumed_from_step"
-#: The agent config group option (the report names the preset by it).
-AGENT_PRESET_TAG = "armexp.agent_preset"
 #: What train reads of the config (`armexp.reads`): the seed, the environment (robot, obstacles,
 #: ``env``; no named tasks: training draws its targets), the controller in the loop and where its
 #: gains come from (``train.gains``, ``train.tune_run``, or the latest tune run under
@@ -333,7 +335,7 @@ def _learn(
         "final/env_steps_per_s": (steps - done_steps) / elapsed if elapsed > 0 else 0.0,
     }
     mlflow.log_metrics(summary)
-    mlflow.set_tag("armexp.stop_reason", budget.reason or "steps")
+    mlflow.set_tag(STOP_REASON_TAG, budget.reason or "steps")
     print(
         f"train: run {run_id} | {gains_from} | {steps} steps, {stats.episodes} episodes, "
         f"{stats.wall():.0f} s | success (last 100) {stats.success_rate:.2f}, collisions "

@@ -41,6 +41,7 @@ from armexp.sim.controllers import (
     gain_names,
     gain_vector,
 )
+from armexp.tags import GAINS_ON_BOUND_TAG
 from armexp.tune.cuckoo import CuckooResult, cuckoo_search
 from armexp.tune.objective import (
     ObjectiveSettings,
@@ -278,7 +279,7 @@ def run(composed: DictConfig) -> tracking.StageResult:
         )
         # best_objective's last history point is the final value; not logged again here.
         mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
-        mlflow.set_tag("armexp.gains_on_bound", ", ".join(bound_hits) or "none")
+        mlflow.set_tag(GAINS_ON_BOUND_TAG, ", ".join(bound_hits) or "none")
         mapping = gain_mapping(kind, best, n)
         names = gain_names(kind, n)
         mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, best, strict=True)})
