@@ -254,7 +254,8 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
         f"armexp {stage}",
         *line.flags,
         *normalize_overrides(overrides),
-        *([f"tracking.sweep_run={sweep[1]}", _swept_override(overrides)] if sweep else []),
+        # Quoted: an id of digits and one "e" would read as a number (`config.run_keys`).
+        *([f"tracking.sweep_run='{sweep[1]}'", _swept_override(overrides)] if sweep else []),
         f"hydra.job.name={stage}",
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
