@@ -250,12 +250,14 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     # `hydra.main` reads its command line from sys.argv only (it has no parameter for one), and
     # its parser wants the overrides as one block after the flags. The sweep run's id goes
     # through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
+    sweep_overrides = (
+        [f"tracking.sweep_run={sweep[1]}", _swept_override(overrides)] if sweep else []
+    )
     sys.argv = [
         f"armexp {stage}",
         *line.flags,
-        *normalize_overrides(overrides),
-        # Quoted: an id of digits and one "e" would read as a number (`config.run_keys`).
-        *([f"tracking.sweep_run='{sweep[1]}'", _swept_override(overrides)] if sweep else []),
+        # The sweep's run id through the same quoting as any run id (`config.run_keys`).
+        *normalize_overrides([*overrides, *sweep_overrides]),
         f"hydra.job.name={stage}",
     ]
     app = hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(job)
