@@ -55,7 +55,7 @@ INFO_FLAGS = {"--help", "-h", "--hydra-help", "--info", "-i", "--shell-completio
 def _swept_override(overrides: Sequence[str]) -> str:
     """``tracking.swept=[…]``: the keys the sweep varies, handed to every job through the
     config (jobs on other processes or machines see it) for their run names."""
-    from armexp import sweeps
+    from armexp.tracking import sweeps
 
     keys = sorted(sweeps.swept_keys(overrides))
     return "tracking.swept=[" + ",".join(f"'{k}'" for k in keys) + "]"
@@ -157,8 +157,8 @@ def _search_path(line: CommandLine) -> list[str]:
 
 def _without_credentials(overrides: list[str]) -> list[str]:
     """A password in ``tracking.uri`` is taken out before Hydra, MLflow params, configs and
-    printed lines see it (`armexp.store.keep_credentials_out`)."""
-    from armexp.store import keep_credentials_out
+    printed lines see it (`armexp.tracking.store.keep_credentials_out`)."""
+    from armexp.tracking.store import keep_credentials_out
 
     out = []
     for override in overrides:
@@ -209,8 +209,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     import hydra
 
-    from armexp import disk, remote, signals, sweeps, workers
+    from armexp import disk, signals, workers
     from armexp.launchers import register_plugins
+    from armexp.tracking import remote, sweeps
 
     def job(cfg: Any) -> Any:
         quiet_warnings()  # again here: a sweep's jobs may run in worker processes
@@ -292,7 +293,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 def _close_sweep(stage: str, sweep: Any, status: str) -> None:
     """End the sweep run with ``status``; when its store does not answer, or a second signal
     stops this, say what is left."""
-    from armexp import remote, sweeps
+    from armexp.tracking import remote, sweeps
 
     try:
         sweeps.close_sweep(sweep, status)
@@ -310,7 +311,7 @@ def _close_sweep(stage: str, sweep: Any, status: str) -> None:
 
 def _stopped(exc: KeyboardInterrupt, sweep: bool) -> str:
     """What became of the run a signal stopped."""
-    from armexp.tracking import RunInterrupted
+    from armexp.tracking.run_end import RunInterrupted
 
     if isinstance(exc, RunInterrupted) and exc.unmarked:
         return (
@@ -333,7 +334,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     stage, rest = args[0], args[1:]
     if stage == "diff":  # not a Hydra app: it reads two runs, it runs nothing
-        from armexp import diff
+        from armexp.tracking import diff
 
         return diff.main(rest)
     if stage not in STAGES:

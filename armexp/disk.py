@@ -1,13 +1,13 @@
 """A full disk ends a stage with one sentence and a FAILED run, never a cut-off file.
 
 Artifacts are written under a temporary name and renamed when complete (MLflow's local
-artifact store does so for each file armexp logs; `armexp.tracking.log_folder` logs folders file
-by file), so a write that fails leaves the previous file or none. A SQLite store keeps
-`RESERVE_BYTES` of room beside its database (`keep_reserve`); when a run fails on a full disk,
-that room is given back first (`release_reserve`) so the error and the FAILED status can still be
-written (`armexp.tracking.stage_run` raises `DiskFull` once it has), and the command line prints
-one sentence (`sentence`). A disk with less than `MIN_FREE_BYTES` left is refused before a stage
-starts (`armexp.cli`).
+artifact store does so for each file armexp logs; `armexp.tracking.artifacts.log_folder` logs
+folders file by file), so a write that fails leaves the previous file or none. A SQLite store
+keeps `RESERVE_BYTES` of room beside its database (`keep_reserve`); when a run fails on a full
+disk, that room is given back first (`release_reserve`) so the error and the FAILED status can
+still be written (`armexp.tracking.stage_runs.stage_run` raises `DiskFull` once it has), and the
+command line prints one sentence (`sentence`). A disk with less than `MIN_FREE_BYTES` left is
+refused before a stage starts (`armexp.cli`).
 """
 
 from __future__ import annotations

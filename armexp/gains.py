@@ -22,11 +22,11 @@ import yaml
 from mlflow.entities import Run
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from armexp import tracking
 from armexp.baselines import CONFIG
 from armexp.config import ConfigError
 from armexp.sim.controllers import without_adaptation as _without_adaptation
-from armexp.tags import CRITERION_TAG, HORIZON_TAG
+from armexp.tracking import artifacts, lookup
+from armexp.tracking.tags import CRITERION_TAG, HORIZON_TAG
 from armexp.tune.objective import resolved_horizon
 
 #: The tune run's param and tags that say what it was tuned under.
@@ -119,7 +119,7 @@ def tuned(
     ``robot`` under ``criterion``, in ``cfg``'s store. A given run of another controller, robot
     or criterion is a `ConfigError` naming ``key``."""
     match = {"controller.name": controller, "robot.name": robot}
-    run = tracking.find_stage_run(
+    run = lookup.find_stage_run(
         cfg, "tune", run_id=run_id, match=match, key=key,
         accept=lambda r: run_criterion(r) == criterion, wanted=f"{CRITERION_PARAM}={criterion}",
     )  # fmt: skip
@@ -137,7 +137,7 @@ def tuned(
             f"{CRITERION_PARAM}={got}, and {criterion} is needed here."
         )
     values = yaml.safe_load(
-        tracking.download_artifact(run.info.run_id, "gains.yaml", cfg).read_text()
+        artifacts.download_artifact(run.info.run_id, "gains.yaml", cfg).read_text()
     )
     return Gains(controller, values, criterion, run_horizon(run), run.info.run_id)
 

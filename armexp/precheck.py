@@ -7,8 +7,8 @@ exit code 2 (`ConfigError`), with no MLflow run, no sweep run and no Hydra folde
   seconds);
 * for a command that runs a job (not ``--cfg job``): what the run would allocate against the
   memory available (`armexp.resources`), the runs folder (writable, room to start), and each run
-  id of the config, which may be a prefix of one (`armexp.run_ids`): the overrides come back
-  with the full ids, so the run's params record them.
+  id of the config, which may be a prefix of one (`armexp.tracking.run_ids`): the overrides come
+  back with the full ids, so the run's params record them.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def precheck(
     the stage (``--cfg job`` only prints). Returns ``overrides`` with run ids in full."""
     from armexp import launchers, resources
     from armexp.config.jobs import JobComposer
-    from armexp.sweeps import sweep_combinations
+    from armexp.tracking.sweeps import sweep_combinations
 
     launchers.check_settings(overrides, search_path)
     jobs = sweep_combinations(overrides) if multirun else [list(overrides)]
@@ -66,7 +66,7 @@ def precheck(
 
 
 def _prefixes(cfg: Any, known: dict[str, tuple[str, Any]]) -> dict[str, tuple[str, Any]]:
-    from armexp import run_ids
+    from armexp.tracking import run_ids
 
     return {
         value: (key, cfg)
@@ -78,9 +78,9 @@ def _prefixes(cfg: Any, known: dict[str, tuple[str, Any]]) -> dict[str, tuple[st
 def _resolve(value: str, key: str, cfg: Any) -> str:
     from mlflow.tracking import MlflowClient
 
-    from armexp import run_ids, store, tracking
+    from armexp.tracking import run_ids, store
 
-    uri = tracking.store_uri(cfg, reading=True)
+    uri = store.store_uri(cfg, reading=True)
     return run_ids.resolve(MlflowClient(uri), value, key, store.hide_password(uri))
 
 

@@ -14,7 +14,7 @@ sit under a hashed one (``eval`` hashed, ``eval.progress`` not).
   reach the config the run logs).
 * `Reads.digest` is the hash of the hashed keys' resolved values (docs/design.md §2: a stage's
   reuse inputs are derived from what it reads), tagged ``armexp.inputs_hash`` on the stage's run
-  (`armexp.tracking.stage_run`); `armexp.reuse` finds FINISHED runs by it.
+  (`armexp.tracking.stage_runs.stage_run`); `armexp.tracking.reuse` finds FINISHED runs by it.
 
 A masked config with raising placeholders, rather than a masked copy or a proxy: a copy without
 the undeclared keys answers ``cfg.get(key)`` and ``OmegaConf.select(cfg, key, default=…)`` with

@@ -1,9 +1,9 @@
 """Stopping on a signal: Ctrl-C (SIGINT) and SIGTERM (a scheduler's stop, ``kill``) end a stage at
-once, its run marked KILLED (`armexp.run_end`), and armexp exits as a shell expects of each:
-128 plus the signal's number (130, 143).
+once, its run marked KILLED (`armexp.tracking.run_end`), and armexp exits as a shell expects of
+each: 128 plus the signal's number (130, 143).
 
 Both raise KeyboardInterrupt where the stage is, and from then on each request to a remote store
-gets one short attempt (`armexp.remote.hurry`), so the writes that close the run end within
+gets one short attempt (`armexp.tracking.remote.hurry`), so the writes that close the run end within
 seconds even when the store is gone. A SIGINT that the shell told this process to ignore (a
 background job) stays ignored.
 """
@@ -16,7 +16,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
-from armexp import remote
+from armexp.tracking import remote
 
 #: The signals received since `install`, first first.
 received: list[int] = []

@@ -7,7 +7,7 @@ while the command died waits for the rest of that half-written job for good (mea
 there 9 minutes on). A worker therefore watches the command from its first job (`job`) and,
 once the command is gone, exits as soon as the job in hand has ended (that job's run ends as it
 would have, so nothing logged is lost; the sweep run is closed by the next command,
-`armexp.tracking.close_orphans`).
+`armexp.tracking.stage_runs.close_orphans`).
 """
 
 from __future__ import annotations

@@ -38,8 +38,8 @@ class _Checked(Exception):
 
 
 def check_seconds(args: list[str]) -> float:
-    from armexp import sweeps
     from armexp.cli import main
+    from armexp.tracking import sweeps
 
     def stop(*_: Any, **__: Any) -> Any:
         raise _Checked

@@ -50,9 +50,9 @@ def logged_tune_run(cfg: Any, gains_yaml: str) -> str:
     ``gains.yaml`` is ``gains_yaml``, without tuning: for tests of what reads tune runs."""
     import mlflow
 
-    from armexp import tracking
+    from armexp.tracking import stage_runs
 
-    with tracking.stage_run(cfg, "tune") as run:
+    with stage_runs.stage_run(cfg, "tune") as run:
         mlflow.log_text(gains_yaml, "gains.yaml")
     return str(run.info.run_id)
 

@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import tracking
 from armexp.cli import main
+from armexp.tracking import stage_runs
 
 SIM = ["simulate", "-m", "seed=0,1", "scenario=hold", "scenario.duration=0.05"]
 
@@ -29,9 +29,9 @@ def stub_stage(monkeypatch: pytest.MonkeyPatch, module: str) -> list[Any]:
 
     calls: list[Any] = []
 
-    def run(cfg: Any) -> tracking.StageResult:
+    def run(cfg: Any) -> stage_runs.StageResult:
         calls.append(cfg)
-        return tracking.StageResult("stub", {})
+        return stage_runs.StageResult("stub", {})
 
     monkeypatch.setattr(importlib.import_module(module), "run", run)
     return calls
@@ -151,7 +151,7 @@ def test_a_report_filter_that_is_not_mlflows_syntax_is_one_sentence(
     from armexp.config import compose_config
 
     where = f"tracking.runs_dir={runs_dir}"
-    tracking.setup(compose_config([where]))  # a store with the experiment, and no runs
+    stage_runs.setup(compose_config([where]))  # a store with the experiment, and no runs
     assert main(["report", "report.filter='params.seed = '", where]) == 2
     line = one_line(capsys)
     assert line.startswith("armexp report: report.filter='params.seed = ' is not allowed: ")

@@ -9,9 +9,9 @@ from typing import Any
 import pytest
 import yaml
 
-from armexp import tracking
 from armexp.cli import main, split_args
-from armexp.sweeps import fixed_overrides, sweep_combinations
+from armexp.tracking.stage_runs import StageResult
+from armexp.tracking.sweeps import fixed_overrides, sweep_combinations
 from tests.helpers import config_dir_with_my_arm, stage_runs
 
 
@@ -102,12 +102,12 @@ def test_an_interrupt_says_whether_a_run_was_started(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from armexp.stages import simulate
 
     def stop(*args: Any, **kwargs: Any) -> Any:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(tracking if where == "setup" else simulate, where, stop)
+    where_module = "armexp.tracking.stage_runs" if where == "setup" else "armexp.stages.simulate"
+    monkeypatch.setattr(f"{where_module}.{where}", stop)
     rc = main(["simulate", "scenario.duration=0.05", f"tracking.runs_dir={runs_dir}"])
     assert rc == 130
     assert capsys.readouterr().err.strip().endswith(f"interrupted; {said}")
@@ -120,7 +120,7 @@ def test_a_stage_returns_its_run_id_and_summary(compose: Any, runs_dir: Path) ->
     from armexp.stages import simulate
 
     result = simulate.run(compose("scenario=hold", "scenario.duration=0.05"))
-    assert isinstance(result, tracking.StageResult)
+    assert isinstance(result, StageResult)
     (run,) = stage_runs(runs_dir, "simulate")
     assert result.run_id == run.info.run_id
     assert result.summary["n_steps"] == run.data.metrics["n_steps"] == 50

@@ -159,12 +159,12 @@ def test_a_file_size_limit_fails_the_run_with_one_sentence(tmp_path: Path) -> No
 
 LAST_WRITES = """
 import errno, os, sys
-from armexp import tracking
+from armexp.tracking import stage_runs
 from armexp.config import compose_config
 
 cfg = compose_config([f"tracking.runs_dir={sys.argv[1]}"])
 try:
-    with tracking.stage_run(cfg, "simulate"):
+    with stage_runs.stage_run(cfg, "simulate"):
         with open("filler2", "wb") as f:  # another writer takes every byte that is left
             try:
                 while True:
@@ -209,15 +209,16 @@ def test_a_nested_stage_stopped_by_a_full_disk_fails_its_parent_too(tmp_path: Pa
     """A pipeline's step: the step's run is the one named, and both runs end FAILED."""
     import errno
 
-    from armexp import disk, tracking
+    from armexp import disk
     from armexp.config import compose_config
+    from armexp.tracking import stage_runs
 
     cfg = compose_config([f"tracking.runs_dir={tmp_path / 'runs'}"])
     with (
         pytest.raises(disk.DiskFull) as stopped,
-        tracking.stage_run(cfg, "pipeline") as outer,
-        tracking.parent(outer.info.run_id),
-        tracking.stage_run(cfg, "train") as child,
+        stage_runs.stage_run(cfg, "pipeline") as outer,
+        stage_runs.parent(outer.info.run_id),
+        stage_runs.stage_run(cfg, "train") as child,
     ):
         raise OSError(errno.ENOSPC, "No space left on device", "model/model.zip")
     assert stopped.value.run_id == child.info.run_id and stopped.value.marked

@@ -11,12 +11,13 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import tracking
 from armexp.cli import main
+from armexp.tracking.stage_runs import setup
+from armexp.tracking.tags import KIND, KIND_TAG
 from tests.helpers import SMALL_TRAIN, SMALL_TUNE, stage_runs
 
 ROOT = Path(__file__).resolve().parents[1]
-KIND = {tracking.KIND_TAG: tracking.KIND}
+KIND_TAGS = {KIND_TAG: KIND}
 
 
 def _names(runs: Path, stage: str) -> list[str]:
@@ -75,7 +76,7 @@ def test_the_experiment_is_marked_classic_ml_and_runs_are_named_by_what_they_are
                  "seed=3", "simulate.run_name=mine", f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
     assert _names(runs, "simulate") == ["simulate-subsystem_adaptive-switching-s0", "mine"]
     experiment = MlflowClient(f"sqlite:///{runs}/mlflow.db").get_experiment_by_name("armexp")
-    assert experiment is not None and experiment.tags.items() >= KIND.items()
+    assert experiment is not None and experiment.tags.items() >= KIND_TAGS.items()
 
 
 def test_a_sweep_names_its_jobs_by_the_values_it_varies(tmp_path: Path) -> None:
@@ -102,11 +103,11 @@ def test_the_kind_is_added_to_an_older_experiment_and_a_users_kind_stays(
     client = MlflowClient(uri)
     older = client.create_experiment("older", artifact_location=str(tmp_path / "a"))
     theirs = client.create_experiment("theirs", artifact_location=str(tmp_path / "b"))
-    client.set_experiment_tag(theirs, tracking.KIND_TAG, "genai_development")
+    client.set_experiment_tag(theirs, KIND_TAG, "genai_development")
     for name in ("older", "theirs"):
-        tracking.setup(compose_config([f"tracking.uri={uri}", f"tracking.experiment={name}"]))
-    assert client.get_experiment(older).tags[tracking.KIND_TAG] == tracking.KIND
-    assert client.get_experiment(theirs).tags[tracking.KIND_TAG] == "genai_development"
+        setup(compose_config([f"tracking.uri={uri}", f"tracking.experiment={name}"]))
+    assert client.get_experiment(older).tags[KIND_TAG] == KIND
+    assert client.get_experiment(theirs).tags[KIND_TAG] == "genai_development"
 
 
 DOWNLOAD = """

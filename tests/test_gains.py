@@ -8,9 +8,10 @@ from collections.abc import Callable
 import pytest
 from omegaconf import DictConfig
 
-from armexp import gains, tracking
+from armexp import gains
 from armexp.config import ConfigError
 from armexp.stages.train import controller_gains_for
+from armexp.tracking import stage_runs
 from tests.helpers import logged_tune_run
 
 
@@ -19,7 +20,7 @@ def test_lookup_errors_name_the_key(compose: Callable[..., DictConfig]) -> None:
     robot = str(cfg.robot.name)
     with pytest.raises(ConfigError, match=r"no FINISHED tune run with controller\.name="):
         gains.tuned(cfg, "subsystem_adaptive", robot, "itae")
-    with tracking.stage_run(cfg, "simulate") as run:
+    with stage_runs.stage_run(cfg, "simulate") as run:
         pass
     with pytest.raises(ConfigError, match="it is a simulate run, and a tune run is needed"):
         gains.tuned(cfg, "subsystem_adaptive", robot, "gaing", run_id=run.info.run_id)

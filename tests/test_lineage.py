@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from armexp.cli import main
-from armexp.lineage import PACKAGES, git_commit
+from armexp.tracking.lineage import PACKAGES, git_commit
 from tests.helpers import stage_runs
 
 

@@ -14,8 +14,9 @@ from typing import Any
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import liveness
 from armexp.cli import main
+from armexp.tracking import liveness
+from armexp.tracking.tags import PROCESS_TAG
 from tests.helpers import SMALL_TRAIN
 
 
@@ -67,7 +68,7 @@ def test_a_run_whose_process_died_is_closed_by_the_next_command(
     tells, after STALE_S."""
     runs = tmp_path / "runs"
     proc, run = _running_train(runs)
-    assert run.data.tags[liveness.PROCESS_TAG].split(":")[1] == str(proc.pid)
+    assert run.data.tags[PROCESS_TAG].split(":")[1] == str(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=60)
     client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")

@@ -1,5 +1,5 @@
 """What a stage reads (armexp.reads): the view it runs on, the digest its runs are reused by, and
-reuse (armexp.reuse), also of runs made before the declarations."""
+reuse (armexp.tracking.reuse), also of runs made before the declarations."""
 
 from __future__ import annotations
 
@@ -15,9 +15,11 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigAttributeError, ReadonlyConfigError
 
-from armexp import reuse, tracking
 from armexp.reads import Reads, UndeclaredRead
 from armexp.stages import evaluate, simulate, train, tune
+from armexp.tracking import reuse, store
+from armexp.tracking.stage_runs import StageResult
+from armexp.tracking.tags import INPUTS_TAG
 from tests.helpers import SMALL_TRAIN, SMALL_TUNE, stage_runs
 
 #: Every stage whose runs ``pipeline.reuse`` may reuse, by its name.
@@ -34,7 +36,7 @@ NOT_RESULTS = {
 SIM = ["scenario.duration=0.2"]
 
 
-def _tagged(runs: Path, stage: str, result: tracking.StageResult) -> Any:
+def _tagged(runs: Path, stage: str, result: StageResult) -> Any:
     """The stage run of ``result``, FINISHED."""
     (run,) = [r for r in stage_runs(runs, stage) if r.info.run_id == result.run_id]
     assert run.info.status == "FINISHED"
@@ -135,7 +137,7 @@ def test_simulate_reads_only_what_it_declares(
 ) -> None:
     cfg = compose(*SIM, *overrides)
     run = _tagged(runs_dir, "simulate", simulate.run(cfg))
-    assert run.data.tags[tracking.INPUTS_TAG] == simulate.READS.digest(cfg)
+    assert run.data.tags[INPUTS_TAG] == simulate.READS.digest(cfg)
 
 
 @pytest.mark.parametrize(
@@ -148,7 +150,7 @@ def test_tune_reads_only_what_it_declares(
 ) -> None:
     cfg = compose(*SMALL_TUNE, *overrides)
     run = _tagged(runs_dir, "tune", tune.run(cfg))
-    assert run.data.tags[tracking.INPUTS_TAG] == tune.READS.digest(cfg)
+    assert run.data.tags[INPUTS_TAG] == tune.READS.digest(cfg)
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +176,7 @@ def test_train_reads_only_what_it_declares(overrides: list[str], chain: Path) ->
 
     cfg = compose_config([*SMALL_TRAIN, *overrides, f"tracking.runs_dir={chain}"])
     run = _tagged(chain, "train", train.run(cfg))
-    assert run.data.tags[tracking.INPUTS_TAG] == train.READS.digest(cfg)
+    assert run.data.tags[INPUTS_TAG] == train.READS.digest(cfg)
 
 
 @pytest.mark.parametrize(
@@ -193,7 +195,7 @@ def test_eval_reads_only_what_it_declares(overrides: list[str], chain: Path) -> 
     common = ["tasks.n_random=1", "eval.animations=false", f"eval.train_run={trained}", where]
     cfg = compose_config([*common, *overrides])
     run = _tagged(chain, "eval", evaluate.run(cfg))
-    assert run.data.tags[tracking.INPUTS_TAG] == evaluate.READS.digest(cfg)
+    assert run.data.tags[INPUTS_TAG] == evaluate.READS.digest(cfg)
 
 
 # --------------------------------------------------------------------------------- the digest
@@ -254,9 +256,9 @@ def test_reuse_takes_a_run_with_the_same_inputs_only(
     assert reuse.reusable(compose(*SMALL_TUNE, "tune.progress=true"), tune.READS) == made
     assert reuse.reusable(compose(*SMALL_TUNE, "env.reference=hold"), tune.READS) is None
     # The same run as an older armexp tagged it.
-    client = MlflowClient(tracking.store_uri(ramp))
+    client = MlflowClient(store.store_uri(ramp))
     old = _hash_as_armexp_always_did(ramp, reuse.LEGACY_INPUTS["tune"])
-    client.set_tag(made, tracking.INPUTS_TAG, old)
+    client.set_tag(made, INPUTS_TAG, old)
     assert reuse.reusable(ramp, tune.READS) == made
     hold = compose(*SMALL_TUNE, "env.reference=hold")
     assert _hash_as_armexp_always_did(hold, reuse.LEGACY_INPUTS["tune"]) == old  # the old bug

@@ -1,6 +1,6 @@
-"""A store across the network held to ``tracking.timeout_s`` (`armexp.remote`): MLflow's retry
-settings derived from it, a database that is not there (or has no driver) as one sentence, and
-`armexp ui` on a port another program holds."""
+"""A store across the network held to ``tracking.timeout_s`` (`armexp.tracking.remote`): MLflow's
+retry settings derived from it, a database that is not there (or has no driver) as one
+sentence, and `armexp ui` on a port another program holds."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ SIMULATE = ["simulate", "scenario=hold", "scenario.duration=0.05"]
 
 @pytest.mark.parametrize("timeout_s", [5, 6, 10, 30, 60, 120, 600, 3600])
 def test_mlflows_retries_fit_in_the_deadline_and_within_mlflows_limits(timeout_s: int) -> None:
-    from armexp import remote
+    from armexp.tracking import remote
 
     retries, factor, attempt = remote.schedule(timeout_s)
     waits = sum(min(remote.WAIT_MAX_S, factor * 2**k) for k in range(1, retries))
@@ -34,7 +34,7 @@ def test_mlflows_retries_fit_in_the_deadline_and_within_mlflows_limits(timeout_s
 def test_the_deadline_sets_mlflows_settings_for_one_command(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from armexp import remote
+    from armexp.tracking import remote
 
     remote.reset()  # what an earlier command in this process may have left
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "99")

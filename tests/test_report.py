@@ -213,15 +213,15 @@ def _hand_store(runs: Path, agent: str) -> tuple[str, str]:
     the stages log them (no stage runs): returns (train run id, eval run id)."""
     from omegaconf import OmegaConf
 
-    from armexp import tracking
     from armexp.config import compose_config
+    from armexp.tracking import stage_runs
 
     train_cfg = compose_config([f"agent={agent}", f"tracking.runs_dir={runs}"])
-    experiment_id = tracking.setup(train_cfg)
+    experiment_id = stage_runs.setup(train_cfg)
     train_id = log_run(
         experiment_id,
         "train",
-        tracking.flatten(train_cfg),
+        stage_runs.flatten(train_cfg),
         tags={"armexp.stop_reason": "time"},
         metrics={
             "final/env_steps": 123456.0,
@@ -233,7 +233,7 @@ def _hand_store(runs: Path, agent: str) -> tuple[str, str]:
     )
     # The eval run's own config composes the default agent (sac_paper): the report must name
     # the policy's preset from the train run, not this.
-    eval_params = tracking.flatten(compose_config([f"tracking.runs_dir={runs}"]))
+    eval_params = stage_runs.flatten(compose_config([f"tracking.runs_dir={runs}"]))
     eval_params.update({"eval.initial_offset": "0.05", "robot.torque_limit": "[400.0, 300.0]"})
     episodes = pd.DataFrame(HAND_EPISODES).to_csv(index=False)
     eval_id = log_run(

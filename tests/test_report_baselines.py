@@ -97,8 +97,8 @@ def _trajectory(task: str, scale: float) -> pd.DataFrame:
 
 
 def _eval_run(experiment_id: str, seed: int, train_id: str, runs: Path) -> str:
-    from armexp import tracking
     from armexp.config import compose_config
+    from armexp.tracking import stage_runs
 
     tunes = {label: _tune_run(experiment_id, label, seed)
              for label in dict.fromkeys(v[5] for v in LABELS.values())}  # fmt: skip
@@ -119,7 +119,7 @@ def _eval_run(experiment_id: str, seed: int, train_id: str, runs: Path) -> str:
     }
     # The metric wins over episodes.csv (the eval run logs both).
     episodes.loc[(episodes.controller == "adaptive") & (episodes.task == "a"), "decay_rate"] = 1.0
-    params = tracking.flatten(compose_config([f"tracking.runs_dir={runs}"]))
+    params = stage_runs.flatten(compose_config([f"tracking.runs_dir={runs}"]))
     params.update({"seed": str(seed), "eval.initial_offset": "0.005", "eval.large_offset": "0.05",
                    "robot.torque_limit": "[400.0, 300.0]"})  # fmt: skip
     tags = {"armexp.train_run": train_id, "armexp.tune_run": tunes["adaptive"],
@@ -141,14 +141,14 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A report over three seeds' eval runs of the new format."""
     from omegaconf import OmegaConf
 
-    from armexp import tracking
     from armexp.config import compose_config
+    from armexp.tracking import stage_runs
 
     runs = tmp_path_factory.mktemp("baselines") / "runs"
     train_cfg = compose_config(["agent=sac_paper", f"tracking.runs_dir={runs}"])
-    experiment_id = tracking.setup(train_cfg)
+    experiment_id = stage_runs.setup(train_cfg)
     train_id = log_run(
-        experiment_id, "train", tracking.flatten(train_cfg),
+        experiment_id, "train", stage_runs.flatten(train_cfg),
         texts={"config.yaml": OmegaConf.to_yaml(train_cfg, resolve=True)},
     )  # fmt: skip
     evals = [_eval_run(experiment_id, seed, train_id, runs) for seed in SEEDS]

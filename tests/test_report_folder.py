@@ -92,7 +92,7 @@ def test_a_report_killed_while_building_leaves_nothing_after_the_next(
 
 
 def test_a_report_being_built_by_a_live_process_is_left_alone(tmp_path: Path) -> None:
-    from armexp import liveness
+    from armexp.tracking import liveness
 
     work = tmp_path / f"{report_folder.BUILD_PREFIX}x"
     work.mkdir()

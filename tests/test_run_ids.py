@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import tracking
 from armexp.cli import main
 from armexp.config import compose_config
+from armexp.tracking import stage_runs
 
 A = "abcd0000" + "0" * 23 + "1"
 B = "abcd0000" + "0" * 23 + "2"
@@ -22,7 +22,7 @@ C = "ef01" + "0" * 28
 @pytest.fixture
 def three_runs(runs_dir: Path, monkeypatch: pytest.MonkeyPatch) -> MlflowClient:
     """A store with train runs A and B, which share their first 30 hex digits, and tune run C."""
-    experiment = tracking.setup(compose_config([f"tracking.runs_dir={runs_dir}"]))
+    experiment = stage_runs.setup(compose_config([f"tracking.runs_dir={runs_dir}"]))
     client = MlflowClient(f"sqlite:///{runs_dir}/mlflow.db")
     for run_id, stage in ((A, "train"), (B, "train"), (C, "tune")):
         with monkeypatch.context() as m:

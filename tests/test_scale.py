@@ -264,30 +264,30 @@ def test_a_password_in_the_tracking_uri_is_nowhere_in_the_runs(
 def test_a_database_uri_keeps_its_password_out_of_the_logs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from armexp import store, tracking
+    from armexp.tracking import store
 
     monkeypatch.setenv("ARMEXP_TRACKING_URI", "")
     # No database behind the address: the connection check is not what this test is about.
-    monkeypatch.setattr("armexp.remote.probe_database", lambda uri, timeout: None)
+    monkeypatch.setattr("armexp.tracking.remote.probe_database", lambda uri, timeout: None)
     shown = store.keep_credentials_out("postgresql://bob:pa55@db.example:5432/mlflow")
     assert shown == "postgresql://bob:***@db.example:5432/mlflow"
-    from armexp.config import compose_config
+    from armexp.config import ConfigError, compose_config
 
     cfg = compose_config(["tracking=server", f"tracking.uri={shown}"])
-    assert tracking.store_uri(cfg) == "postgresql://bob:pa55@db.example:5432/mlflow"
+    assert store.store_uri(cfg) == "postgresql://bob:pa55@db.example:5432/mlflow"
     monkeypatch.setenv("ARMEXP_TRACKING_URI", "")
-    with pytest.raises(tracking.ConfigError, match="its password is hidden"):
-        tracking.store_uri(cfg)
+    with pytest.raises(ConfigError, match="its password is hidden"):
+        store.store_uri(cfg)
 
 
 @pytest.mark.slow
 def test_sigint_to_a_joblib_sweep_leaves_no_running_job(tmp_path: Path) -> None:
-    from armexp import tracking
     from armexp.config import compose_config
+    from armexp.tracking import store
 
     runs = tmp_path / "runs"
     # The store made first, so this test's look-ups do not race the sweep's creation of it.
-    uri = tracking.store_uri(compose_config([f"tracking.runs_dir={runs}"]))
+    uri = store.store_uri(compose_config([f"tracking.runs_dir={runs}"]))
     command = [sys.executable, "-m", "armexp", "train", "-m", "seed=0,1", "controller.gains=paper",
                *SMALL_TRAIN, "agent.max_env_steps=100000", "hydra/launcher=joblib",
                "hydra.launcher.n_jobs=2", f"tracking.runs_dir={runs}"]  # fmt: skip

@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import anchor, store
 from armexp.cli import main
+from armexp.tracking import anchor, store
+from armexp.tracking.tags import ANCHOR_TAG
 from tests.helpers import SMALL_TRAIN, stage_runs
 
 SIM = ["simulate", "scenario=hold", "scenario.duration=0.05"]
@@ -130,7 +131,7 @@ def test_an_archived_store_unpacked_elsewhere_reads_and_writes_in_place(tmp_path
 def _make_old(runs: Path) -> None:
     """The store as armexp wrote it before locations followed the store: no anchor tag."""
     with sqlite3.connect(runs / "mlflow.db") as con:
-        con.execute("DELETE FROM experiment_tags WHERE key = ?", (anchor.ANCHOR_TAG,))
+        con.execute("DELETE FROM experiment_tags WHERE key = ?", (ANCHOR_TAG,))
 
 
 def test_an_old_absolute_store_is_migrated_when_opened_after_a_copy(tmp_path: Path) -> None:
@@ -142,7 +143,7 @@ def test_an_old_absolute_store_is_migrated_when_opened_after_a_copy(tmp_path: Pa
     assert folders(copy / "runs") == {a, b} and folders(proj / "runs") == {a}
     fresh()
     exp = client_of(copy / "runs").get_experiment_by_name("armexp")
-    assert exp is not None and exp.tags[anchor.ANCHOR_TAG] == anchor.STORE
+    assert exp is not None and exp.tags[ANCHOR_TAG] == anchor.STORE
     assert exp.artifact_location == (copy / "runs" / "artifacts").as_uri()
     shutil.rmtree(proj)
     assert readable(copy / "runs", a, tmp_path).is_file()
@@ -194,7 +195,7 @@ def test_an_old_store_with_a_chosen_root_is_not_re_anchored(tmp_path: Path) -> N
     fresh()
     exp = client_of(moved / "runs").get_experiment_by_name("armexp")
     assert exp is not None and exp.artifact_location == root.as_uri()
-    assert exp.tags[anchor.ANCHOR_TAG] == anchor.GIVEN
+    assert exp.tags[ANCHOR_TAG] == anchor.GIVEN
     assert {p.name for p in root.iterdir()} == {
         r.info.run_id for r in stage_runs(moved / "runs", "simulate")
     }

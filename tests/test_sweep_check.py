@@ -10,9 +10,9 @@ from typing import Any
 import pytest
 from omegaconf import OmegaConf
 
-from armexp import sweeps
 from armexp.cli import main
 from armexp.config import compose_config
+from armexp.tracking import sweeps
 
 
 class Checked(Exception):

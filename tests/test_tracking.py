@@ -10,11 +10,11 @@ import pytest
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
-from armexp import tracking
+from armexp.tracking import stage_runs, store
 
 
 def _only_run(cfg: DictConfig) -> mlflow.entities.Run:
-    client = MlflowClient(tracking.store_uri(cfg))
+    client = MlflowClient(store.store_uri(cfg))
     exp = client.get_experiment_by_name("armexp")
     assert exp is not None
     (run,) = client.search_runs([exp.experiment_id])
@@ -23,13 +23,13 @@ def _only_run(cfg: DictConfig) -> mlflow.entities.Run:
 
 def test_store_defaults_to_sqlite_under_runs_dir(compose: Callable[..., DictConfig]) -> None:
     cfg = compose()
-    assert tracking.store_uri(cfg).startswith("sqlite:///")
-    assert tracking.store_uri(cfg).endswith("/runs/mlflow.db")
-    assert tracking.artifact_root(cfg).endswith("/runs/artifacts")  # type: ignore[union-attr]
+    assert store.store_uri(cfg).startswith("sqlite:///")
+    assert store.store_uri(cfg).endswith("/runs/mlflow.db")
+    assert store.artifact_root(cfg).endswith("/runs/artifacts")  # type: ignore[union-attr]
 
 
 def test_flatten_keeps_lists_as_one_param(compose: Callable[..., DictConfig]) -> None:
-    flat = tracking.flatten(compose())
+    flat = stage_runs.flatten(compose())
     assert flat["robot.lengths"] == "[1.0, 0.8]"
     assert flat["controller.gains.r1"] == "0.69"
     assert flat["robot.uncertainty.f_terms"].startswith('[{"joint": 1')
@@ -39,7 +39,7 @@ def test_failed_stage_is_failed_and_keeps_what_was_logged(
     compose: Callable[..., DictConfig],
 ) -> None:
     cfg = compose()
-    with pytest.raises(RuntimeError), tracking.stage_run(cfg, "simulate"):
+    with pytest.raises(RuntimeError), stage_runs.stage_run(cfg, "simulate"):
         mlflow.log_metric("partial", 1.5)
         raise RuntimeError("boom")
     run = _only_run(cfg)
@@ -52,7 +52,7 @@ def test_failed_stage_is_failed_and_keeps_what_was_logged(
 
 def test_interrupted_stage_is_killed(compose: Callable[..., DictConfig]) -> None:
     cfg = compose()
-    with pytest.raises(KeyboardInterrupt), tracking.stage_run(cfg, "tune"):
+    with pytest.raises(KeyboardInterrupt), stage_runs.stage_run(cfg, "tune"):
         mlflow.log_metric("partial", 2.0)
         raise KeyboardInterrupt
     run = _only_run(cfg)
@@ -77,10 +77,10 @@ def test_a_locked_store_does_not_lose_the_final_status(
 
     monkeypatch.setattr(MlflowClient, "set_terminated", locked_once)
     if outcome == "KILLED":
-        with pytest.raises(KeyboardInterrupt), tracking.stage_run(cfg, "tune"):
+        with pytest.raises(KeyboardInterrupt), stage_runs.stage_run(cfg, "tune"):
             raise KeyboardInterrupt
     else:
-        with tracking.stage_run(cfg, "simulate"):
+        with stage_runs.stage_run(cfg, "simulate"):
             mlflow.log_metric("partial", 3.0)
     assert calls == [outcome, outcome]
     assert _only_run(cfg).info.status == outcome

@@ -18,7 +18,7 @@ from stable_baselines3.common.logger import KVWriter
 
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.console import progress_bar
-from armexp.tracking import log_batch, log_folder
+from armexp.tracking.artifacts import log_batch, log_folder
 
 #: Artifact paths of a train run.
 CHECKPOINT_DIR = "checkpoint"

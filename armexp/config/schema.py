@@ -319,12 +319,13 @@ class TrackingConfig:
     runs_dir: str = "runs"
     artifact_root: str | None = None
     #: Seconds armexp waits for a tracking server or database that does not answer before it
-    #: stops the run (`armexp.remote`); at most an hour (MLflow caps the waits between retries).
+    #: stops the run (`armexp.tracking.remote`); at most an hour (MLflow caps the waits between
+    #: retries).
     timeout_s: float = checked(60.0, between(5, 3600))
     #: Set by `armexp <stage> -m`: the sweep's parent run, which every job's run hangs under.
     sweep_run: str | None = None
     #: Set by `armexp <stage> -m`: the keys the sweep varies, whose values each job's run name
-    #: shows (`armexp.run_names`).
+    #: shows (`armexp.tracking.run_names`).
     swept: list[str] = field(default_factory=list)
 
 

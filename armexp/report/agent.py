@@ -22,7 +22,7 @@ import yaml
 from mlflow.entities import Run
 
 from armexp.report.runs import metric_value
-from armexp.tags import AGENT_PRESET_TAG, STOP_REASON_TAG
+from armexp.tracking.tags import AGENT_PRESET_TAG, STOP_REASON_TAG
 
 #: Modules whose add-ons use the planner's or the obstacles' privileged knowledge, for aids
 #: composed from config lists (``_target_``) rather than agent keys.

@@ -17,8 +17,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from armexp import liveness
 from armexp.config import ConfigError
+from armexp.tracking import liveness
 
 #: The file that marks a folder as an armexp report (which a new report may replace).
 MARKER = ".armexp-report"
@@ -27,7 +27,7 @@ MARKER_TEXT, FILES_LINE = "made by armexp report; the folder is replaced as a wh
 #: What a report made before the marker listed its files holds at its top level.
 EARLIER_LAYOUT = frozenset({"index.html", "runs.csv", "tables", "figures", "animations", MARKER})
 #: Beside the target: the folder a report is built in, and the file in it naming its process
-#: (`armexp.liveness.process_identity`) and its target.
+#: (`armexp.tracking.liveness.process_identity`) and its target.
 BUILD_PREFIX, OWNER = ".armexp-report-build-", "owner"
 
 

@@ -23,8 +23,14 @@ from armexp.config import ConfigError
 from armexp.report import labels, tables, tuning
 from armexp.report.agent import AgentInfo, agent_info, caption
 from armexp.report.labels import Label
-from armexp.report.runs import TASKS, TRAIN_RUN_TAG, Reader, Selection, metric_value
-from armexp.tags import ADAPTIVE_GAINS_TAG, AGENT_PRESET_TAG, COMMIT_TAG, STAGE_TAG
+from armexp.report.runs import TASKS, Reader, Selection, metric_value
+from armexp.tracking.tags import (
+    ADAPTIVE_GAINS_TAG,
+    AGENT_PRESET_TAG,
+    COMMIT_TAG,
+    STAGE_TAG,
+    TRAIN_RUN_TAG,
+)
 
 #: What `armexp eval` animates: ``animations/<label>/<task>.<format>`` artifacts.
 ANIMATIONS_DIR = "animations"

@@ -30,8 +30,14 @@ from typing import Any
 import pandas as pd
 from mlflow.entities import Run
 
-from armexp.report.runs import PID_TUNE_RUN_TAG, TUNE_RUN_PREFIX, TUNE_RUN_TAG
-from armexp.tags import ADAPTIVE_GAINS_TAG, CRITERION_TAG, HORIZON_TAG
+from armexp.tracking.tags import (
+    ADAPTIVE_GAINS_TAG,
+    CRITERION_TAG,
+    HORIZON_TAG,
+    PID_TUNE_RUN_TAG,
+    TUNE_RUN_PREFIX,
+    TUNE_RUN_TAG,
+)
 
 #: The artifact in which an eval run names its labels.
 CONTROLLERS_FILE = "controllers.yaml"

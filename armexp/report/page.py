@@ -23,7 +23,8 @@ from armexp.report import (
     tuning,
 )
 from armexp.report.agent import AgentInfo
-from armexp.report.runs import TASKS, TRAIN_RUN_TAG, Reader, Selection
+from armexp.report.runs import TASKS, Reader, Selection
+from armexp.tracking.tags import TRAIN_RUN_TAG
 
 #: Above this many train runs the per-run training curves give way to the across-seed ones.
 MAX_TRAINING_CURVES = 4

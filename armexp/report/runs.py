@@ -22,9 +22,9 @@ import yaml
 from mlflow.entities import Run
 from mlflow.tracking import MlflowClient
 
-from armexp import run_ids
 from armexp.config import ConfigError
-from armexp.tags import (
+from armexp.tracking import run_ids
+from armexp.tracking.tags import (
     PARENT_TAG,
     PID_TUNE_RUN_TAG,
     STAGE_TAG,

@@ -23,7 +23,7 @@ from armexp.report import labels, stats
 from armexp.report.labels import Label
 from armexp.report.runs import Reader, Selection
 from armexp.report.tables import Table, fmt
-from armexp.tags import GAINS_ON_BOUND_TAG
+from armexp.tracking.tags import GAINS_ON_BOUND_TAG
 
 ADAPTIVE = "subsystem_adaptive"
 

@@ -12,10 +12,10 @@ import mlflow
 import numpy as np
 import pandas as pd
 
-from armexp import tracking
 from armexp.baselines import title
 from armexp.envs.reach import ReachEnv
 from armexp.render.animation import Scene, write
+from armexp.tracking import store
 
 ANIMATIONS_DIR = "animations"
 #: A target as an episode stores it (an array) or as written in a config.
@@ -51,5 +51,5 @@ def log_animation(
         paths = write(frame, still, Path(tmp) / name, formats)
         folder = f"{ANIMATIONS_DIR}/{label}"
         for path in paths.values():
-            tracking.retry(lambda p=path: mlflow.log_artifact(str(p), folder))  # type: ignore[misc]
+            store.retry(lambda p=path: mlflow.log_artifact(str(p), folder))  # type: ignore[misc]
     return time.perf_counter() - start

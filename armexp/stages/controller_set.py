@@ -30,7 +30,6 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
-from armexp import run_names, tracking
 from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
 from armexp.agents.sac import load_sac
 from armexp.baselines import (
@@ -50,8 +49,13 @@ from armexp.baselines import (
 from armexp.config import ConfigError
 from armexp.gains import Gains, criterion_of, resolve, run_criterion, run_horizon, tuned
 from armexp.gains import without_adaptation as adaptation_off
-from armexp.stages.train import TUNE_RUN_TAG
-from armexp.tags import ADAPTIVE_GAINS_TAG, TRAIN_RUN_TAG
+from armexp.tracking import artifacts, lookup, stage_runs, store
+from armexp.tracking.tags import (
+    ADAPTIVE_GAINS_TAG,
+    AGENT_PRESET_TAG,
+    TRAIN_RUN_TAG,
+    TUNE_RUN_TAG,
+)
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +108,7 @@ class Policy:
 
 
 def _train_run(cfg: DictConfig, section: str) -> Any:
-    return tracking.find_stage_run(
+    return lookup.find_stage_run(
         cfg,
         "train",
         run_id=cfg[section].train_run,
@@ -112,7 +116,7 @@ def _train_run(cfg: DictConfig, section: str) -> Any:
         match={
             "robot.name": str(cfg.robot.name),
             "obstacles.name": str(cfg.obstacles.name),
-            "obstacles.circles": tracking.flatten(cfg.obstacles)["circles"],
+            "obstacles.circles": stage_runs.flatten(cfg.obstacles)["circles"],
         },
         key=f"{section}.train_run",
     )
@@ -145,8 +149,8 @@ def load_policy(cfg: DictConfig, section: str) -> Policy:
         own = _trained_gains(cfg, train_run, trained_with, values)
         if own.tune_run:
             tags[TUNE_RUN_TAG] = own.tune_run
-    if train_run.data.tags.get(run_names.AGENT_PRESET_TAG):  # the run is named after the policy
-        tags[run_names.AGENT_PRESET_TAG] = train_run.data.tags[run_names.AGENT_PRESET_TAG]
+    if train_run.data.tags.get(AGENT_PRESET_TAG):  # the run is named after the policy
+        tags[AGENT_PRESET_TAG] = train_run.data.tags[AGENT_PRESET_TAG]
     model_path = _policy_artifact(cfg, section, train_id, f"{MODEL_DIR}/{MODEL_FILE}")
     model = load_sac(str(model_path), None, train_cfg.agent)
     entry = Entry(own_label(trained_with), PROPOSED, own)
@@ -163,10 +167,10 @@ def _policy_artifact(cfg: DictConfig, section: str, train_id: str, path: str) ->
     """The artifact ``path`` of the policy's train run, downloaded; a `ConfigError` naming the
     run and the artifact when the run has none (deleted, or never written)."""
     try:
-        return tracking.download_artifact(train_id, path, cfg)
+        return artifacts.download_artifact(train_id, path, cfg)
     except (MlflowException, OSError):
         folder, _, name = path.rpartition("/")
-        client = MlflowClient(tracking.store_uri(cfg))
+        client = MlflowClient(store.store_uri(cfg))
         if any(Path(f.path).name == name for f in client.list_artifacts(train_id, folder or None)):
             raise  # it is there: something else went wrong
     if cfg[section].train_run:
@@ -219,7 +223,7 @@ def _trained_gains(cfg: DictConfig, train_run: Any, controller: str, values: Any
     tune_id = train_run.data.tags.get(TUNE_RUN_TAG)
     if not tune_id:
         return Gains(controller, values, CONFIG, None, None)
-    tune = tracking.find_stage_run(
+    tune = lookup.find_stage_run(
         cfg, "tune", run_id=tune_id, key=f"the tune run of train run {train_run.info.run_id}"
     )
     return Gains(controller, values, run_criterion(tune), run_horizon(tune), tune_id)

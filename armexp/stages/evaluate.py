@@ -42,7 +42,7 @@ import pandas as pd
 import yaml
 from omegaconf import DictConfig
 
-from armexp import console, run_end, tracking
+from armexp import console
 from armexp.agents.rollout import Episode, convergence_metrics, episode_metrics, rollout
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv
@@ -58,6 +58,7 @@ from armexp.stages.controller_set import (
     lineage_tags,
     load_policy,
 )
+from armexp.tracking import artifacts, run_end, stage_runs
 
 #: The perturbed runs of a paper task: (``eval`` key of the offset, metric and file suffix).
 PERTURBATIONS = (("initial_offset", ""), ("large_offset", "_large"))
@@ -87,14 +88,14 @@ def _targets(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any]]]
     return out
 
 
-def run(composed: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> stage_runs.StageResult:
     """Evaluate on `READS`' view of the composed config; the run logs the composed config."""
     cfg = READS.view(composed)
     policy = load_policy(cfg, "eval")
     entries = controller_set(cfg, policy)
     tags = {**policy.tags, **lineage_tags(entries)}
     composed = as_run(composed, policy, "eval")
-    with tracking.stage_run(
+    with stage_runs.stage_run(
         composed, "eval", run_name=cfg.eval.run_name, extra_tags=tags, reads=READS
     ) as active:
         described = {e.label: e.record() for e in entries}
@@ -126,16 +127,16 @@ def run(composed: DictConfig) -> tracking.StageResult:
         except BaseException as exc:
             if records:  # an interrupted or failed eval keeps the episodes it ran
                 with run_end.while_stopping(exc):
-                    tracking.log_dataframe(pd.DataFrame(records), "episodes.csv")
+                    artifacts.log_dataframe(pd.DataFrame(records), "episodes.csv")
             raise
         finally:
             if bar is not None:
                 bar.close()
         frame = pd.DataFrame(records)
-        tracking.log_dataframe(frame, "episodes.csv")
+        artifacts.log_dataframe(frame, "episodes.csv")
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
         _print_summary(active.info.run_id, policy.train_id, frame, time.perf_counter() - started)
-        return tracking.StageResult(active.info.run_id, summary)
+        return stage_runs.StageResult(active.info.run_id, summary)
 
 
 def _episode(
@@ -165,14 +166,14 @@ def _episode(
             tolerance = float(cfg.eval.convergence_tolerance)
             measured = convergence_metrics(perturbed, n, float(offset), window, tolerance)
             metrics.update({f"{k}{suffix}": v for k, v in measured.items()})
-            tracking.log_dataframe(
+            artifacts.log_dataframe(
                 _frame(perturbed, n), f"{task}_offset{suffix}.parquet", f"trajectories/{label}"
             )
         finite = {k: v for k, v in metrics.items() if math.isfinite(v)}
         mlflow.log_metrics({f"{label}.{task}.{k}": v for k, v in finite.items()})
     if paper_task or cfg.eval.random_trajectories:
         frame = _frame(episode, n)
-        tracking.log_dataframe(frame, f"{task}.parquet", f"trajectories/{label}")
+        artifacts.log_dataframe(frame, f"{task}.parquet", f"trajectories/{label}")
         if cfg.eval.animations and paper_task:
             what = animate.describe(task, episode.target)
             still = animate.scene(env, label, what, episode.target, episode.reason)

@@ -12,8 +12,8 @@ under each other criterion a baseline needs (the proposed side of that compariso
 inputs match a FINISHED run's is not run again: that run's id is used and tagged on the parent
 (``armexp.reused.<step>``). A stage's inputs are the config keys it reads that change its result,
 upstream run ids included, as its module declares them (``READS``, `armexp.reads`; the stage runs
-on a view of the config that lets it read nothing else); `armexp.reuse` finds the run. A failing
-stage marks the parent FAILED and names itself in ``armexp.failed_stage``.
+on a view of the config that lets it read nothing else); `armexp.tracking.reuse` finds the run.
+A failing stage marks the parent FAILED and names itself in ``armexp.failed_stage``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from collections.abc import Callable
 import mlflow
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from armexp import reuse, run_end, tracking
 from armexp.baselines import (
     ADAPTIVE,
     BASELINES,
@@ -37,7 +36,8 @@ from armexp.baselines import (
 from armexp.config import ConfigError, validate
 from armexp.gains import criterion_of, with_criterion
 from armexp.reads import Reads
-from armexp.tags import FAILED_STAGE_TAG, RESUMED_PREFIX, REUSED_PREFIX, RUN_PREFIX
+from armexp.tracking import reuse, run_end, stage_runs
+from armexp.tracking.tags import FAILED_STAGE_TAG, RESUMED_PREFIX, REUSED_PREFIX, RUN_PREFIX
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ def run_one(
     run_name: str | None = None,
     paper_gains_row: bool = False,
     report_: bool = True,
-) -> tracking.StageResult:
+) -> stage_runs.StageResult:
     """The tune steps (`tune_steps`) → train → eval (→ eval_paper: the adaptive controller with
     the paper's gains) (→ report) under one parent run; its id, and the ids of the stage runs by
     step."""
@@ -146,14 +146,14 @@ def run_one(
     }
     ids: dict[str, str] = {}
     name = run_name if run_name is not None else cfg.pipeline.run_name
-    with tracking.stage_run(cfg, "pipeline", run_name=name) as parent:
+    with stage_runs.stage_run(cfg, "pipeline", run_name=name) as parent:
         parent_id = parent.info.run_id
 
         def step(
             name: str,
             reads: Reads | None,
             stage_cfg: DictConfig,
-            fn: Callable[[DictConfig], tracking.StageResult],
+            fn: Callable[[DictConfig], stage_runs.StageResult],
         ) -> str:
             if cfg.pipeline.reuse and reads is not None:
                 found = reuse.reusable(stage_cfg, reads)
@@ -164,7 +164,7 @@ def run_one(
                     return found
             print(f"pipeline: {name} ...")
             try:
-                with tracking.parent(parent_id):
+                with stage_runs.parent(parent_id):
                     result = fn(stage_cfg)
             except BaseException as exc:
                 with run_end.while_stopping(exc):
@@ -208,4 +208,4 @@ def run_one(
             + " | ".join(f"{k} {v[:8]}" for k, v in ids.items())
             + (f" | report: {report.out_dir(cfg) / 'index.html'}" if report_ else "")
         )
-    return tracking.StageResult(parent_id, ids)
+    return stage_runs.StageResult(parent_id, ids)

@@ -29,7 +29,6 @@ import pandas as pd
 import yaml
 from omegaconf import DictConfig, open_dict
 
-from armexp import tracking
 from armexp.agents.rollout import episode_metrics, rollout
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
@@ -37,6 +36,7 @@ from armexp.envs.reach import ReachEnv
 from armexp.sim.trajectory import trajectory_columns
 from armexp.stages import animate
 from armexp.stages.controller_set import as_run, lineage_tags, load_policy, play_entry
+from armexp.tracking import artifacts, stage_runs
 
 
 def _episodes(cfg: DictConfig, env: ReachEnv) -> list[tuple[str, dict[str, Any], int]]:
@@ -74,7 +74,7 @@ def _local(uri: str) -> str:
     return unquote(parsed.path) if parsed.scheme in ("", "file") else uri
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
+def run(cfg: DictConfig) -> stage_runs.StageResult:
     policy = load_policy(cfg, "play")
     entry = play_entry(cfg, policy)
     label, gains = entry.label, entry.gains.values
@@ -87,7 +87,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     lengths = env.settings.plant.arm.lengths_array
     formats = [str(f) for f in cfg.play.formats]
     tags = {**policy.tags, **lineage_tags([entry])}
-    with tracking.stage_run(cfg, "play", run_name=cfg.play.run_name, extra_tags=tags) as active:
+    with stage_runs.stage_run(cfg, "play", run_name=cfg.play.run_name, extra_tags=tags) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), f"gains/{label}.yaml")
         records, seconds = [], []
         for name, options, seed in episodes:
@@ -98,7 +98,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
             finite = {k: v for k, v in metrics.items() if math.isfinite(v)}
             mlflow.log_metrics({f"{label}.{name}.{k}": v for k, v in finite.items()})
             frame = pd.DataFrame(episode.rows, columns=[*trajectory_columns(n), "target_error"])
-            tracking.log_dataframe(frame, f"{name}.parquet", f"trajectories/{label}")
+            artifacts.log_dataframe(frame, f"{name}.parquet", f"trajectories/{label}")
             task = name if "task" in options else None
             what = animate.describe(task, episode.target)
             still = animate.scene(env, label, what, episode.target, episode.reason)
@@ -107,7 +107,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
                 {"controller": label, "task": name, "reason": episode.reason, "seed": seed,
                  "target_x": episode.target[0], "target_y": episode.target[1], **metrics}
             )  # fmt: skip
-        tracking.log_dataframe(pd.DataFrame(records), "episodes.csv")
+        artifacts.log_dataframe(pd.DataFrame(records), "episodes.csv")
         summary = {"episodes": float(len(records)),
                    "success_rate": float(np.mean([r["success"] for r in records])),
                    "animation_seconds": float(np.mean(seconds))}  # fmt: skip
@@ -119,4 +119,4 @@ def run(cfg: DictConfig) -> tracking.StageResult:
             f"animations ({', '.join(formats)}) of {', '.join(r['task'] for r in records)} in "
             f"{where}"
         )
-        return tracking.StageResult(active.info.run_id, summary)
+        return stage_runs.StageResult(active.info.run_id, summary)

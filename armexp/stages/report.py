@@ -18,12 +18,12 @@ import mlflow
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
-from armexp import tracking
 from armexp.report import folder
 from armexp.report.folder import MARKER
 from armexp.report.page import build
 from armexp.report.runs import Reader, select
-from armexp.tags import REPORT_RUNS_TAG
+from armexp.tracking import artifacts, stage_runs, store
+from armexp.tracking.tags import REPORT_RUNS_TAG
 
 __all__ = ["MARKER", "REPORT_RUNS_TAG", "out_dir", "run"]
 
@@ -33,8 +33,8 @@ def out_dir(cfg: DictConfig) -> Path:
     return Path(cfg.report.out_dir or Path(cfg.tracking.runs_dir) / "report").resolve()
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
-    uri = tracking.store_uri(cfg)
+def run(cfg: DictConfig) -> stage_runs.StageResult:
+    uri = store.store_uri(cfg)
     client = MlflowClient(uri)
     selection = select(
         client,
@@ -42,7 +42,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
         pipeline_run=cfg.report.pipeline_run,
         eval_runs=[str(r) for r in cfg.report.eval_runs],
         filter_string=cfg.report.filter,
-        store=tracking.store.hide_password(uri),
+        store=store.hide_password(uri),
     )
     target = out_dir(cfg)
     folder.check(target)
@@ -57,13 +57,13 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     finally:
         reader.close()
     ids = ",".join(r.info.run_id for r in selection.evals)
-    with tracking.stage_run(
+    with stage_runs.stage_run(
         cfg, "report", run_name=cfg.report.run_name, extra_tags={REPORT_RUNS_TAG: ids[:5000]}
     ) as active:
         mlflow.log_metrics({k: v for k, v in summary.items() if math.isfinite(v)})
-        tracking.log_folder(target, "report")
+        artifacts.log_folder(target, "report")
         print(
             f"report: run {active.info.run_id} | {len(selection.evals)} eval run(s) "
             f"({selection.how}) | open {target / 'index.html'}"
         )
-    return tracking.StageResult(active.info.run_id, summary)
+    return stage_runs.StageResult(active.info.run_id, summary)

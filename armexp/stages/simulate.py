@@ -16,12 +16,12 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from armexp import tracking
 from armexp.builders import build_plant, build_scenario, controller_gains
 from armexp.reads import Reads
 from armexp.sim.metrics import tracking_metrics
 from armexp.sim.simulator import Simulator
 from armexp.sim.trajectory import trajectory_columns
+from armexp.tracking import artifacts, stage_runs
 
 log = logging.getLogger(__name__)
 #: What simulate reads of the config (`armexp.reads`): the plant, the controller and its gains,
@@ -34,11 +34,11 @@ READS = Reads(
 )
 
 
-def run(composed: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> stage_runs.StageResult:
     """Simulate on `READS`' view of the composed config; the run logs the composed config."""
     cfg = READS.view(composed)
     name = cfg.simulate.run_name
-    with tracking.stage_run(composed, "simulate", run_name=name, reads=READS) as active:
+    with stage_runs.stage_run(composed, "simulate", run_name=name, reads=READS) as active:
         plant = build_plant(cfg)
         scenario = build_scenario(cfg)
         sim = Simulator(
@@ -69,7 +69,7 @@ def run(composed: DictConfig) -> tracking.StageResult:
             sim_steps_per_s=rows.shape[0] / wall if wall > 0 else float("nan"),
         )
         mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
-        tracking.log_dataframe(
+        artifacts.log_dataframe(
             pd.DataFrame(rows, columns=trajectory_columns(n)), "trajectory.parquet"
         )
         log.info(
@@ -83,4 +83,4 @@ def run(composed: DictConfig) -> tracking.StageResult:
             f"simulate: run {active.info.run_id} | rms |e1| {metrics['rms_e1']:.3g} rad | "
             f"converged in {metrics['convergence_time']:.3g} s | diverged: {sim.diverged}"
         )
-        return tracking.StageResult(active.info.run_id, metrics)
+        return stage_runs.StageResult(active.info.run_id, metrics)

@@ -20,12 +20,12 @@ from typing import Any
 import mlflow
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from armexp import run_names, tracking
 from armexp.config import ConfigError
-from armexp.tags import FAILED_SEEDS_TAG, RUN_PREFIX, STUDY_TAG
+from armexp.tracking import run_names, stage_runs
+from armexp.tracking.tags import FAILED_SEEDS_TAG, RUN_PREFIX, STUDY_TAG
 
 
-def run(cfg: DictConfig) -> tracking.StageResult:
+def run(cfg: DictConfig) -> stage_runs.StageResult:
     """`armexp pipeline`: one pipeline (`armexp.stages.pipeline.run_one`), or with
     ``pipeline.seeds`` a study of one pipeline per seed; the parent run, with the stage runs'
     ids by step as its summary. The command lives here so that the study, which runs
@@ -35,7 +35,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     return run_study(cfg) if cfg.pipeline.seeds else pipeline.run_one(cfg)
 
 
-def run_study(cfg: DictConfig) -> tracking.StageResult:
+def run_study(cfg: DictConfig) -> stage_runs.StageResult:
     from armexp.stages import pipeline, report
 
     seeds = [int(s) for s in cfg.pipeline.seeds]
@@ -44,7 +44,7 @@ def run_study(cfg: DictConfig) -> tracking.StageResult:
     ids: dict[str, str] = {}
     failed: dict[int, str] = {}
     evals: list[str] = []
-    with tracking.stage_run(
+    with stage_runs.stage_run(
         cfg, "pipeline", extra_tags={STUDY_TAG: ",".join(map(str, seeds))}
     ) as parent:
         parent_id = parent.info.run_id
@@ -56,7 +56,7 @@ def run_study(cfg: DictConfig) -> tracking.StageResult:
                 seed_cfg.pipeline.reuse = True
             print(f"study: seed {seed} ({seeds.index(seed) + 1} of {len(seeds)})")
             try:
-                with tracking.parent(parent_id):
+                with stage_runs.parent(parent_id):
                     seed_run = pipeline.run_one(
                         seed_cfg,
                         # A study's own pipeline.run_name names the study, not each seed.
@@ -81,7 +81,7 @@ def run_study(cfg: DictConfig) -> tracking.StageResult:
             cfg.report.pipeline_run = parent_id
             cfg.report.eval_runs = evals
             cfg.report.seeds = seeds
-        with tracking.parent(parent_id):
+        with stage_runs.parent(parent_id):
             ids["report"] = report.run(cfg).run_id
         mlflow.set_tag(RUN_PREFIX + "report", ids["report"])
         summary: dict[str, Any] = {"runs": ids, "failed_seeds": failed}
@@ -91,4 +91,4 @@ def run_study(cfg: DictConfig) -> tracking.StageResult:
             + (f" (failed: {', '.join(map(str, sorted(failed)))})" if failed else "")
             + f" | report: {report.out_dir(cfg) / 'index.html'}"
         )
-    return tracking.StageResult(parent_id, ids)
+    return stage_runs.StageResult(parent_id, ids)

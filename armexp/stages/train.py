@@ -31,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
-from armexp import console, disk, liveness, remote, run_end, tracking
+from armexp import console, disk
 from armexp.agents.addons import TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
@@ -52,8 +52,10 @@ from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.gains import resolve
 from armexp.reads import Reads
-from armexp.tags import (
+from armexp.tracking import artifacts, liveness, lookup, remote, run_end, stage_runs, store
+from armexp.tracking.tags import (
     AGENT_PRESET_TAG,
+    ERROR_TAG,
     GAINS_SOURCE_TAG,
     RESUMED_TAG,
     STOP_REASON_TAG,
@@ -108,7 +110,7 @@ def step_budget(cfg: DictConfig) -> int:
     return bound if cap is None else min(bound, int(cap))
 
 
-def run(composed: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> stage_runs.StageResult:
     """Train on `READS`' view of the composed config; the run logs the composed config whole."""
     cfg = READS.view(composed)
     if cfg.train.resume:
@@ -118,22 +120,22 @@ def run(composed: DictConfig) -> tracking.StageResult:
     build_addons(cfg.train.callbacks, "train.callbacks")
     gains, tags = controller_gains_for(cfg)
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
-    with tracking.stage_run(
+    with stage_runs.stage_run(
         composed, "train", run_name=cfg.train.run_name, extra_tags=tags, reads=READS
     ) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
         summary = _learn(cfg, gains, active.info.run_id, None, {}, _gains_from(tags))
-        return tracking.StageResult(active.info.run_id, summary)
+        return stage_runs.StageResult(active.info.run_id, summary)
 
 
-def resume(composed: DictConfig, check_overrides: bool = True) -> tracking.StageResult:
+def resume(composed: DictConfig, check_overrides: bool = True) -> stage_runs.StageResult:
     """Continue a KILLED/FAILED train run from its checkpoint, in the same MLflow run, with the
     run's own config (``check_overrides=False``: the caller knows the composed config matches
     the run's inputs, e.g. the pipeline with ``pipeline.reuse``). Both configs are read through
     `READS`."""
     cfg = READS.view(composed)
     run_id = str(cfg.train.resume)
-    found = tracking.find_stage_run(
+    found = lookup.find_stage_run(
         cfg, "train", run_id=run_id, key="train.resume", statuses=("KILLED", "FAILED", "RUNNING")
     )
     if liveness.is_alive(found):
@@ -143,35 +145,35 @@ def resume(composed: DictConfig, check_overrides: bool = True) -> tracking.Stage
             "for it to end or stop it first."
         )
     try:
-        state_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{STATE_FILE}", cfg)
+        state_path = artifacts.download_artifact(run_id, f"{CHECKPOINT_DIR}/{STATE_FILE}", cfg)
     except Exception:
         raise ConfigError(
             f"train.resume={run_id} is not allowed: that run has no checkpoint yet (it stopped "
             "before its first one); start a new run instead."
         ) from None
     state = json.loads(state_path.read_text())
-    model_path = tracking.download_artifact(run_id, f"{CHECKPOINT_DIR}/{MODEL_FILE}", cfg)
-    original = OmegaConf.load(tracking.download_artifact(run_id, "config.yaml", cfg))
+    model_path = artifacts.download_artifact(run_id, f"{CHECKPOINT_DIR}/{MODEL_FILE}", cfg)
+    original = OmegaConf.load(artifacts.download_artifact(run_id, "config.yaml", cfg))
     assert isinstance(original, DictConfig)
     original.tracking = composed.tracking
     original.train.progress = composed.train.progress
     if check_overrides:
         _apply_resume_overrides(original, cfg, run_id)
-    gains = yaml.safe_load(tracking.download_artifact(run_id, "gains.yaml", cfg).read_text())
+    gains = yaml.safe_load(artifacts.download_artifact(run_id, "gains.yaml", cfg).read_text())
     print(f"train: resuming run {run_id} from step {state['num_timesteps']}")
-    with tracking.stage_run(
+    with stage_runs.stage_run(
         original,
         "train",
         resume_run_id=run_id,
         extra_tags={RESUMED_TAG: str(state["num_timesteps"])},
         reads=READS,
     ):
-        if tracking.ERROR_TAG in found.data.tags:
+        if ERROR_TAG in found.data.tags:
             # The interruption that stopped it is over: the run ends with its own new status.
-            tracking.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, tracking.ERROR_TAG))
+            store.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, ERROR_TAG))
         origin = _gains_from(found.data.tags)
         summary = _learn(READS.view(original), gains, run_id, str(model_path), state, origin)
-        return tracking.StageResult(run_id, summary)
+        return stage_runs.StageResult(run_id, summary)
 
 
 #: Keys a resume may change: where it logs, how it shows progress, and the budget to extend.

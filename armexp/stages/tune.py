@@ -28,10 +28,9 @@ import pandas as pd
 import yaml
 from omegaconf import DictConfig
 
-from armexp import console, tracking
+from armexp import console
 from armexp.builders import build_plant, controller_gains, controller_kind
 from armexp.config import ConfigError
-from armexp.gains import CRITERION_TAG, HORIZON_TAG
 from armexp.reads import Reads
 from armexp.sim.controllers import (
     ADAPTIVE,
@@ -41,7 +40,8 @@ from armexp.sim.controllers import (
     gain_names,
     gain_vector,
 )
-from armexp.tags import GAINS_ON_BOUND_TAG
+from armexp.tracking import artifacts, stage_runs
+from armexp.tracking.tags import CRITERION_TAG, GAINS_ON_BOUND_TAG, HORIZON_TAG
 from armexp.tune.cuckoo import CuckooResult, cuckoo_search
 from armexp.tune.objective import (
     ObjectiveSettings,
@@ -167,7 +167,7 @@ def _search(
     def flush() -> None:
         nonlocal logged
         if pending:
-            tracking.log_metric_history("best_objective", pending, start_step=logged + 1)
+            artifacts.log_metric_history("best_objective", pending, start_step=logged + 1)
             logged += len(pending)
             pending.clear()
 
@@ -243,13 +243,13 @@ def _best_metrics(
     return metrics, bound_hits
 
 
-def run(composed: DictConfig) -> tracking.StageResult:
+def run(composed: DictConfig) -> stage_runs.StageResult:
     """Tune on `READS`' view of the composed config; the run logs the composed config whole."""
     cfg = READS.view(composed)
     space = search_space(cfg)
     settings = objective_settings(cfg)
     criterion = settings.criterion
-    with tracking.stage_run(composed, "tune", run_name=cfg.tune.run_name, reads=READS) as active:
+    with stage_runs.stage_run(composed, "tune", run_name=cfg.tune.run_name, reads=READS) as active:
         mlflow.set_tags({CRITERION_TAG: criterion, HORIZON_TAG: f"{settings.horizon:g}"})
         objective = build_objective(cfg)
         n = len(cfg.robot.lengths)
@@ -262,7 +262,7 @@ def run(composed: DictConfig) -> tracking.StageResult:
         mlflow.log_metrics({k: v for k, v in reference.items() if np.isfinite(v)})
 
         result, wall = _search(cfg, space, objective)
-        tracking.log_dataframe(_candidates(space, result, n), "candidates.csv")
+        artifacts.log_dataframe(_candidates(space, result, n), "candidates.csv")
         if not np.isfinite(result.best_f):
             raise ConfigError(
                 f"tune found no feasible gains for {cfg.controller.name}: all "
@@ -298,4 +298,4 @@ def run(composed: DictConfig) -> tracking.StageResult:
             + (f" | on a bound: {', '.join(bound_hits)}" if bound_hits else "")
         )
         summary = {"best_objective": float(result.best_f), **metrics, **reference}
-        return tracking.StageResult(active.info.run_id, summary)
+        return stage_runs.StageResult(active.info.run_id, summary)

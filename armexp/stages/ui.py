@@ -13,8 +13,9 @@ import sys
 
 from omegaconf import DictConfig
 
-from armexp import console, tracking
+from armexp import console
 from armexp.config import ConfigError
+from armexp.tracking import stage_runs, store
 
 #: MLflow's UI keeps a "GenAI" or "Machine learning" view; the link names the second, where an
 #: experiment opens on its runs table (a run's params, metrics, artifacts) rather than on traces.
@@ -23,12 +24,12 @@ VIEW = "workflowType=machine_learning"
 
 def ui_command(cfg: DictConfig) -> list[str]:
     """The `mlflow ui` command line that shows this store."""
-    uri = tracking.store_uri(cfg)
+    uri = store.store_uri(cfg)
     # The model registry in the same store, as MLflow would pick, without its line saying so.
     cmd = ["mlflow", "ui", "--backend-store-uri", uri, "--registry-store-uri", uri]
     # One worker: one person browsing one store, and Ctrl-C never lands in a worker mid-import.
     cmd += ["--host", str(cfg.ui.host), "--port", str(cfg.ui.port), "--workers", "1"]
-    root = tracking.artifact_root(cfg)
+    root = store.artifact_root(cfg)
     if root:
         cmd += ["--default-artifact-root", root]
     return cmd
@@ -76,7 +77,7 @@ def _free_port(host: str) -> int:
 def run(cfg: DictConfig) -> None:
     check_address(str(cfg.ui.host), int(cfg.ui.port))
     # The experiment exists, with its kind tag, before the UI first shows it.
-    experiment_id = tracking.setup(cfg)
+    experiment_id = stage_runs.setup(cfg)
     # The interpreter running armexp has MLflow, whether or not its scripts are on PATH.
     cmd = [sys.executable, "-m", *ui_command(cfg)]
     print("running:", shlex.join(cmd[2:]))

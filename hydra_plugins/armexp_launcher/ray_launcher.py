@@ -4,9 +4,9 @@ Hydra's launcher collects its jobs with ``ray.get`` one after another, so a work
 (the OOM killer, a lost node, SIGKILL) raises out of the launcher while the other jobs still run,
 and they die with the driver. `RayLauncher` waits for every job and turns a lost one into a
 FAILED job result instead: the other points finish, the store marks the lost point's runs FAILED
-(`armexp.sweeps.close_sweep`), and ``pipeline.reuse=true`` on the same command completes only the
-points that are missing. Tasks are not retried (``max_retries: 0`` in the config): a point that
-died is re-run by the user, not silently.
+(`armexp.tracking.sweeps.close_sweep`), and ``pipeline.reuse=true`` on the same command
+completes only the points that are missing. Tasks are not retried (``max_retries: 0`` in the
+config): a point that died is re-run by the user, not silently.
 
 Hydra imports every module of ``hydra_plugins`` when it looks for plugins, so Ray and Hydra's
 Ray plugin are imported only when this launcher is set up (``armexp[cluster]``).

@@ -11,7 +11,7 @@ Once a store is found lost in the middle of a run (`is_lost`), or a signal asks 
 (`hurry`), each request gets one short attempt, so the writes that close a run end within
 seconds whether or not they reach the store. The run a lost store stops is named by `StoreLost`;
 when it could not be marked, the next command against that store marks it FAILED
-(`armexp.tracking.close_orphans`: its process is gone).
+(`armexp.tracking.stage_runs.close_orphans`: its process is gone).
 """
 
 from __future__ import annotations

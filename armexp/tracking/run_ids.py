@@ -3,7 +3,7 @@
 armexp prints the first 8 characters of a run id where a line is short (``policy of train run
 1a2b3c4d``); every key that takes a run id (`KEYS`) and ``armexp diff`` accept such a prefix. One
 resolver, `resolve`, serves them all: before a command runs, `armexp.precheck` writes the full
-ids into its overrides (so its run's params record them); `armexp.tracking.find_stage_run`,
+ids into its overrides (so its run's params record them); `armexp.tracking.lookup.find_stage_run`,
 ``armexp diff`` and the report's run selection resolve what reaches them otherwise (a config
 file, a library call).
 """
@@ -18,7 +18,7 @@ from omegaconf import DictConfig, ListConfig
 
 from armexp.config import ConfigError
 from armexp.config.run_keys import KEYS, LISTS, MAPS, SINGLE
-from armexp.tags import STAGE_TAG
+from armexp.tracking.tags import STAGE_TAG
 
 __all__ = ["KEYS", "LISTS", "MAPS", "SINGLE", "given", "is_full", "resolve"]
 

@@ -8,9 +8,9 @@ match.
 Runs made before the declarations carry a digest of a list kept by hand beside the stages
 (`LEGACY_INPUTS`), which left out keys the stages read (tune and simulate read ``env.reference``).
 Such a run is still reused when its digest equals this config's under that list *and* its logged
-params (the flattened resolved config, `armexp.tracking.flatten`) equal this config's on every
-key the declaration hashes, so an old run is taken only where it is the run this config would
-make.
+params (the flattened resolved config, `armexp.tracking.stage_runs.flatten`) equal this config's
+on every key the declaration hashes, so an old run is taken only where it is the run this config
+would make.
 """
 
 from __future__ import annotations
@@ -21,8 +21,9 @@ from mlflow.entities import Run
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
-from armexp import tracking
 from armexp.reads import Reads, digest
+from armexp.tracking import stage_runs, store
+from armexp.tracking.tags import INPUTS_TAG, STAGE_TAG
 
 #: The keys the ``armexp.inputs_hash`` of runs made before the declarations was a digest of.
 LEGACY_INPUTS: dict[str, tuple[str, ...]] = {
@@ -43,14 +44,14 @@ CANDIDATES = 20
 
 def reusable(cfg: DictConfig, reads: Reads) -> str | None:
     """The newest FINISHED run of ``reads.stage`` whose inputs match ``cfg``'s (None: none)."""
-    client = MlflowClient(tracking.store_uri(cfg))
+    client = MlflowClient(store.store_uri(cfg))
     return _find(client, cfg, reads, "attributes.status = 'FINISHED'", lambda run: True)
 
 
 def resumable(cfg: DictConfig, reads: Reads) -> str | None:
     """The newest KILLED or FAILED run of ``reads.stage`` with ``cfg``'s inputs and a
     checkpoint, to continue (None: none)."""
-    client = MlflowClient(tracking.store_uri(cfg))
+    client = MlflowClient(store.store_uri(cfg))
 
     def stopped_with_checkpoint(run: Run) -> bool:
         if run.info.status not in ("KILLED", "FAILED"):
@@ -63,10 +64,10 @@ def resumable(cfg: DictConfig, reads: Reads) -> str | None:
 def params_match(run: Run, cfg: DictConfig, reads: Reads) -> bool:
     """Whether ``run``'s logged params equal ``cfg``'s on every key ``reads`` hashes (a value
     cut to MLflow's length limit never matches)."""
-    flat = tracking.flatten(cfg)
+    flat = stage_runs.flatten(cfg)
     want = {k: v for k, v in flat.items() if reads.hashes(k)}
     have = {k: v for k, v in run.data.params.items() if reads.hashes(k)}
-    return want == have and all(len(v) < tracking.MAX_PARAM_LENGTH for v in want.values())
+    return want == have and all(len(v) < stage_runs.MAX_PARAM_LENGTH for v in want.values())
 
 
 def _find(
@@ -84,11 +85,11 @@ def _find(
 
     def search(value: str) -> list[Run]:
         clauses = [
-            f"tags.`{tracking.STAGE_TAG}` = '{reads.stage}'",
-            f"tags.`{tracking.INPUTS_TAG}` = '{value}'",
+            f"tags.`{STAGE_TAG}` = '{reads.stage}'",
+            f"tags.`{INPUTS_TAG}` = '{value}'",
             *([status] if status else []),
         ]
-        found = tracking.retry(
+        found = store.retry(
             lambda: client.search_runs(
                 [exp.experiment_id],
                 " and ".join(clauses),

@@ -9,8 +9,7 @@ from collections.abc import Mapping, Sequence
 from mlflow.entities import Run
 
 from armexp.config import ConfigError
-from armexp.lineage import COMMIT_TAG, DIRTY_TAG, VERSION_TAG
-from armexp.tags import STAGE_TAG
+from armexp.tracking.tags import COMMIT_TAG, DIRTY_TAG, STAGE_TAG, VERSION_TAG
 
 USAGE = "usage: armexp diff <run id> <run id> [tracking.runs_dir=... | tracking=server ...]"
 #: How a value absent from one run is shown.
@@ -86,20 +85,20 @@ def main(args: Sequence[str]) -> int:
         from mlflow.exceptions import MlflowException
         from mlflow.tracking import MlflowClient
 
-        from armexp import run_ids, tracking
         from armexp.config import compose_config
+        from armexp.tracking import run_ids, store
 
-        uri = tracking.store_uri(compose_config(overrides), reading=True)
+        uri = store.store_uri(compose_config(overrides), reading=True)
         client = MlflowClient(uri)
         runs = []
         for given in ids:
-            run_id = run_ids.resolve(client, given, "run id", tracking.store.hide_password(uri))
+            run_id = run_ids.resolve(client, given, "run id", store.hide_password(uri))
             try:
                 runs.append(client.get_run(run_id))
             except MlflowException:
                 raise ConfigError(
                     f"run id {run_id} is not allowed: no run with that id exists in the store "
-                    f"{tracking.store.hide_password(uri)}."
+                    f"{store.hide_password(uri)}."
                 ) from None
     except ConfigError as exc:
         print(f"armexp diff: {exc}", file=sys.stderr)

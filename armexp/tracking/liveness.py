@@ -3,7 +3,7 @@
 A running stage tags its run with its process (`PROCESS_TAG`, ``host:pid:start``) and rewrites
 `HEARTBEAT_TAG` every `HEARTBEAT_S` seconds (`Heartbeat`). A RUNNING run is taken as dead when its
 process is gone from this host, or, from another host, when it has been silent for `STALE_S`
-(`is_alive`); `armexp.tracking.close_orphans` marks such runs FAILED.
+(`is_alive`); `armexp.tracking.stage_runs.close_orphans` marks such runs FAILED.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 from mlflow.entities import Run
 from mlflow.tracking import MlflowClient
 
-from armexp.tags import HEARTBEAT_TAG, PROCESS_TAG
+from armexp.tracking.tags import HEARTBEAT_TAG, PROCESS_TAG
 
 log = logging.getLogger(__name__)
 

@@ -8,19 +8,22 @@ from __future__ import annotations
 STAGE_TAG = "armexp.stage"
 #: MLflow's own: the parent run of a nested run.
 PARENT_TAG = "mlflow.parentRunId"
+#: MLflow's own, on an experiment: its kind. The UIs that read it open a "Machine learning"
+#: experiment on its runs table, not on the GenAI overview of traces, which armexp never logs.
+KIND_TAG, KIND = "mlflow.experimentKind", "custom_model_development"
 #: The failure's one sentence, on a FAILED run.
 ERROR_TAG = "armexp.error"
-#: Code lineage (`armexp.lineage`): the git commit, whether the tree was dirty, and the
+#: Code lineage (`armexp.tracking.lineage`): the git commit, whether the tree was dirty, and the
 #: installed versions (``armexp.version.<package>``).
 COMMIT_TAG = "armexp.git_commit"
 DIRTY_TAG = "armexp.git_dirty"
 VERSION_TAG = "armexp.version."
-#: Liveness (`armexp.liveness`): the running process and its last heartbeat.
+#: Liveness (`armexp.tracking.liveness`): the running process and its last heartbeat.
 HEARTBEAT_TAG = "armexp.heartbeat"
 PROCESS_TAG = "armexp.process"
 #: The digest of a stage's inputs (`armexp.reads`), which reuse matches.
 INPUTS_TAG = "armexp.inputs_hash"
-#: The artifact root a store was made with (`armexp.anchor`).
+#: The artifact root a store was made with (`armexp.tracking.anchor`).
 ANCHOR_TAG = "armexp.artifact_root"
 
 # ------------------------------------------------------------------ sweeps

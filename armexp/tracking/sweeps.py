@@ -16,7 +16,15 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 
-from armexp.tags import SWEEP_STAGE_TAG
+from armexp.tracking.tags import (
+    ERROR_TAG,
+    HEARTBEAT_TAG,
+    PARENT_TAG,
+    PROCESS_TAG,
+    STAGE_TAG,
+    SWEEP_STAGE_TAG,
+    SWEEP_TAG,
+)
 
 
 def _ours(overrides: Sequence[str]) -> list[Override]:
@@ -73,32 +81,32 @@ def open_sweep(
     checks before a sweep do not need it.)"""
     from mlflow.tracking import MlflowClient
 
-    from armexp import liveness, tracking
     from armexp.config import compose_config
+    from armexp.tracking import liveness, stage_runs, store
 
     cfg = compose_config([*search_path, *fixed_overrides(overrides)])
-    experiment_id = tracking.setup(cfg)
-    client = MlflowClient(tracking.store_uri(cfg))
-    run = tracking.retry(
+    experiment_id = stage_runs.setup(cfg)
+    client = MlflowClient(store.store_uri(cfg))
+    run = store.retry(
         lambda: client.create_run(
             experiment_id,
             run_name=f"sweep-{stage}",
             tags={
-                tracking.STAGE_TAG: "sweep",
+                STAGE_TAG: "sweep",
                 SWEEP_STAGE_TAG: stage,
-                liveness.HEARTBEAT_TAG: f"{time.time():.0f}",
-                liveness.PROCESS_TAG: liveness.process_identity(),
+                HEARTBEAT_TAG: f"{time.time():.0f}",
+                PROCESS_TAG: liveness.process_identity(),
             },
         )
     )
     sweep_id = run.info.run_id
     client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
     print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
-    return client, sweep_id, liveness.Heartbeat(sweep_id, tracking.store_uri(cfg))
+    return client, sweep_id, liveness.Heartbeat(sweep_id, store.store_uri(cfg))
 
 
 def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
-    from armexp import tracking
+    from armexp.tracking import stage_runs, store
 
     client, sweep_id, _ = sweep
     if status != "FINISHED":
@@ -106,32 +114,32 @@ def close_sweep(sweep: tuple[Any, str, Any], status: str) -> None:
         if status == "FAILED":
             # A job whose worker died (SIGKILL, OOM) left its runs RUNNING: FAILED, naming the
             # process that is gone.
-            tracking.retry(lambda: tracking.close_orphans(client, experiment_id))
+            store.retry(lambda: stage_runs.close_orphans(client, experiment_id))
         # Jobs stopped with the sweep (Ctrl-C reaches its workers too) end as the sweep did.
         running = client.search_runs(
             [experiment_id],
-            f"tags.`{tracking.SWEEP_TAG}` = '{sweep_id}' and attributes.status = 'RUNNING'",
+            f"tags.`{SWEEP_TAG}` = '{sweep_id}' and attributes.status = 'RUNNING'",
             max_results=1000,
         )
         for run in running:
             run_id = str(run.info.run_id)
 
             def stop(rid: str = run_id) -> None:
-                client.set_tag(rid, tracking.ERROR_TAG, "sweep stopped")
+                client.set_tag(rid, ERROR_TAG, "sweep stopped")
                 client.set_terminated(rid, "KILLED")
 
-            tracking.retry(stop)
+            store.retry(stop)
         jobs = client.search_runs(
-            [experiment_id], f"tags.`{tracking.PARENT_TAG}` = '{sweep_id}'", max_results=10000
+            [experiment_id], f"tags.`{PARENT_TAG}` = '{sweep_id}'", max_results=10000
         )
         if not jobs and status == "FAILED":
             # Hydra stopped before any job had a run (its own error was printed): an empty
             # sweep run would only be clutter, so it goes to MLflow's deleted runs.
-            tracking.retry(lambda: client.set_terminated(sweep_id, status))
-            tracking.retry(lambda: client.delete_run(sweep_id))
+            store.retry(lambda: client.set_terminated(sweep_id, status))
+            store.retry(lambda: client.delete_run(sweep_id))
             return
         unfinished = sum(r.info.status != "FINISHED" for r in jobs)
         why = "interrupted" if status == "KILLED" else "a job failed"
         reason = f"{why}: {unfinished} of its {len(jobs)} jobs did not finish"
-        tracking.retry(lambda: client.set_tag(sweep_id, tracking.ERROR_TAG, reason))
-    tracking.retry(lambda: client.set_terminated(sweep_id, status))
+        store.retry(lambda: client.set_tag(sweep_id, ERROR_TAG, reason))
+    store.retry(lambda: client.set_terminated(sweep_id, status))

@@ -1,11 +1,11 @@
 """How a stage run ends: its status written truthfully, also when the stage stops on a signal, a
-full disk or a store that stopped answering (`armexp.remote`).
+full disk or a store that stopped answering (`armexp.tracking.remote`).
 
 The writes that end a run are made while it stops, so they never hide why it stopped: a
 second Ctrl-C or a store that is gone leaves the run's status unwritten, and the exception that
-stopped the stage says so (`RunInterrupted`, `armexp.remote.StoreLost`,
+stopped the stage says so (`RunInterrupted`, `armexp.tracking.remote.StoreLost`,
 `armexp.disk.DiskFull`). A run left RUNNING is closed by the next command against its store
-(`armexp.tracking.close_orphans`).
+(`armexp.tracking.stage_runs.close_orphans`).
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ from contextlib import contextmanager
 import mlflow
 from mlflow.tracking import MlflowClient
 
-from armexp import disk, remote
-from armexp.store import is_locked, retry
-from armexp.tags import ERROR_TAG
+from armexp import disk
+from armexp.tracking import remote
+from armexp.tracking.store import is_locked, retry
+from armexp.tracking.tags import ERROR_TAG
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +79,7 @@ def interrupted(run_id: str, exc: KeyboardInterrupt) -> RunInterrupted:
 
 def lost(uri: str, run_id: str, exc: BaseException) -> remote.StoreLost:
     """Try once more, briefly, to mark the run FAILED after its store stopped answering
-    (`armexp.remote.is_lost`); the `StoreLost` to raise says whether that worked. A nested
+    (`armexp.tracking.remote.is_lost`); the `StoreLost` to raise says whether that worked. A nested
     stage's names its own run and passes on."""
     remote.hurry()
     why = remote.reason(exc)
@@ -111,7 +112,7 @@ def while_stopping(cause: BaseException) -> Iterator[None]:
     """Writes a stage makes as it stops (what it has so far, for a resume or a look): a
     failure is dropped when ``cause`` is an interrupt or a lost store, whose message would
     otherwise be lost, and raised after any other cause. After a lost store they get one short
-    attempt each (`armexp.remote.hurry`)."""
+    attempt each (`armexp.tracking.remote.hurry`)."""
     lost_store = remote.is_lost(cause)
     if lost_store:
         remote.hurry()

@@ -1,15 +1,19 @@
-"""Opening a tracking store safely: a SQLite store created and migrated under a lock, waited
-for while another process writes to it, its artifact locations following its folder when it was
-copied or moved (`armexp.anchor`); a tracking server or a database server asked once whether it
-answers (`armexp.remote`); passwords
-in a tracking URI kept out of everything armexp logs, prints or writes.
+"""Where the tracking store is and opening it safely.
 
-Nothing here knows about stages or runs (`armexp.tracking` does).
+`store_uri` and `artifact_root` say where a config's runs and artifacts go. A SQLite store is
+created and migrated under a lock, waited for while another process writes to it, its artifact
+locations following its folder when it was copied or moved (`armexp.tracking.anchor`); a
+tracking server or a database server is asked once whether it answers
+(`armexp.tracking.remote`); passwords in a tracking URI are kept out of everything armexp logs,
+prints or writes.
+
+Nothing here knows about stages or runs (`armexp.tracking.stage_runs` does).
 """
 
 from __future__ import annotations
 
 import fcntl
+import logging
 import os
 import sys
 import time
@@ -21,13 +25,14 @@ from typing import TypeVar
 from urllib.parse import unquote, urlsplit, urlunsplit
 
 from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf
 
-from armexp import anchor, disk, remote
+from armexp import disk
 from armexp.config import ConfigError
-from armexp.remote import hide_password
+from armexp.tracking import anchor, remote
+from armexp.tracking.remote import hide_password
 
-#: What a hidden password is shown as; `armexp.tracking.store_uri` restores it from
-#: SECRET_URI_ENV.
+#: What a hidden password is shown as; `store_uri` restores it from SECRET_URI_ENV.
 SECRET_URI_ENV = "ARMEXP_TRACKING_URI"
 #: Seconds to wait for a tracking server's first answer (at most ``tracking.timeout_s``).
 PROBE_S = 10.0
@@ -37,11 +42,55 @@ BUSY_WAIT_S, BUSY_POLL_S = 60.0, 1.0
 _opened: set[str] = set()
 T = TypeVar("T")
 
+logging.getLogger("alembic").setLevel(logging.WARNING)
+# MLflow logs each database error it then raises (a lock, a full disk); armexp reports the error.
+logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
+
+
+def store_uri(cfg: DictConfig, reading: bool = False) -> str:
+    """The tracking URI: ``tracking.uri`` or the SQLite file under ``tracking.runs_dir``; a
+    SQLite store is created (or migrated) under a lock the first time this process uses it.
+    ``reading``: for a command that only reads, which creates nothing (`open_once`).
+    Requests to a server or database are held to ``tracking.timeout_s``
+    (`armexp.tracking.remote`)."""
+    remote.configure(float(OmegaConf.select(cfg, "tracking.timeout_s", default=remote.DEFAULT_S)))
+    if cfg.tracking.uri:
+        uri = str(cfg.tracking.uri)
+        if f":{remote.HIDDEN}@" in uri:
+            real = os.environ.get(SECRET_URI_ENV, "")
+            if hide_password(real) != uri:
+                raise ConfigError(
+                    f"tracking.uri={uri} is not allowed here: its password is hidden and this "
+                    f"process was not given it ({SECRET_URI_ENV}); pass tracking.uri with "
+                    "the password on the armexp command line."
+                )
+            uri = real
+    else:
+        runs = Path(cfg.tracking.runs_dir).resolve()
+        if not reading:
+            runs.mkdir(parents=True, exist_ok=True)
+        uri = f"sqlite:///{runs / 'mlflow.db'}"
+    open_once(uri, reading)
+    return uri
+
+
+def artifact_root(cfg: DictConfig) -> str | None:
+    """Where a new experiment stores artifacts (None: the server decides): a SQLite store's
+    ``artifacts`` folder beside its database unless ``tracking.artifact_root`` says otherwise."""
+    if cfg.tracking.artifact_root:
+        return str(cfg.tracking.artifact_root)
+    uri = str(cfg.tracking.uri or "")
+    if uri and not uri.startswith("sqlite:///"):
+        return None
+    db = Path(uri[len("sqlite:///") :]) if uri else Path(cfg.tracking.runs_dir) / "mlflow.db"
+    return anchor.store_artifacts(db.resolve()).as_uri()
+
 
 def open_once(uri: str, reading: bool = False) -> None:
     """The first use of ``uri`` in this process: open a SQLite store under its lock, or ask a
     server whether it answers; nothing for other stores or later uses. ``reading``: for a
-    command that only reads (`armexp.diff`), a SQLite store must exist and may be read-only."""
+    command that only reads (`armexp.tracking.diff`), a SQLite store must exist and may be
+    read-only."""
     if uri in _opened:
         return
     if uri.startswith("sqlite:///"):
@@ -118,8 +167,8 @@ def _open_sqlite(uri: str, reading: bool) -> None:
     """Open the SQLite store once with an exclusive lock on ``<db>.lock``: MLflow creates and
     migrates a new store's schema on first open, and processes doing that at the same time
     fail or leave it half-migrated. Under the lock its artifact locations follow the folder it
-    is in now (`armexp.anchor`) and its reserve is kept (`armexp.disk`). ``reading``: a command
-    that only reads, for which the store must exist and may be read-only."""
+    is in now (`armexp.tracking.anchor`) and its reserve is kept (`armexp.disk`). ``reading``: a
+    command that only reads, for which the store must exist and may be read-only."""
     db = Path(uri[len("sqlite:///") :]).resolve()
     if reading and not db.is_file():
         raise ConfigError(

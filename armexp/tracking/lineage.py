@@ -8,7 +8,7 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
-from armexp.tags import COMMIT_TAG, DIRTY_TAG, VERSION_TAG
+from armexp.tracking.tags import COMMIT_TAG, DIRTY_TAG, VERSION_TAG
 
 PACKAGES = ("armexp", "torch", "stable-baselines3", "gymnasium", "mlflow", "hydra-core",
             "numba", "numpy")  # fmt: skip

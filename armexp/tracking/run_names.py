@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from armexp.tags import AGENT_PRESET_TAG
+from armexp.tracking.tags import AGENT_PRESET_TAG
 
 #: Config keys each stage's name shows already; a sweep over one of them adds no suffix.
 SHOWN: dict[str, tuple[str, ...]] = {

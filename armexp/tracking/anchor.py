@@ -11,8 +11,8 @@ where that folder is not the one named, its locations are rewritten to name this
 Experiments made before the tag existed are classified once, on the first open, from where
 their runs' folders are (`classify`), and tagged.
 
-Nothing here knows about stages or runs (`armexp.tracking` does); `armexp.store` calls
-`anchor_artifacts` under the store's lock.
+Nothing here knows about stages or runs (`armexp.tracking.stage_runs` does);
+`armexp.tracking.store` calls `anchor_artifacts` under the store's lock.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 from urllib.request import url2pathname
 
 from armexp.config import ConfigError
-from armexp.tags import ANCHOR_TAG
+from armexp.tracking.tags import ANCHOR_TAG
 
 #: Values of `ANCHOR_TAG`: in the store's own ``artifacts`` folder, or where the user chose.
 STORE, GIVEN = "store", "given"
