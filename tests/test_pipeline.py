@@ -6,11 +6,19 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from omegaconf import OmegaConf
 
 from armexp.cli import main
 from armexp.config import compose_config, group_options
 from armexp.gains import criterion_of, run_criterion, with_criterion
-from armexp.stages.pipeline import eval_tune_runs, paper_gains_config, tune_steps
+from armexp.stages.pipeline import (
+    eval_config,
+    eval_tune_runs,
+    paper_gains_config,
+    report_config,
+    train_config,
+    tune_steps,
+)
 from tests.helpers import SMALL_TRAIN, interrupt_training_at, pid_baseline, stage_runs
 
 SMALL = [
@@ -247,6 +255,27 @@ def test_the_paper_gains_row_runs_the_policy_alone_with_configured_gains() -> No
     assert list(paper.eval.baselines) == [] and paper.eval.ablation is False
     assert paper.eval.adaptive_gains == "config" and dict(paper.eval.tune_runs) == {}
     assert list(cfg.eval.baselines) == ["pid_gaing", "pid_itae", "computed_torque"]
+
+
+def test_each_step_gets_a_config_of_its_own_with_its_upstream_run_ids() -> None:
+    cfg = with_criterion(compose_config(["eval.baselines=[pid_itae]"]), "itae")
+    before = OmegaConf.to_container(cfg)
+    ids = {"tune": "A", "tune_pid_itae": "C", "tune_adaptive_gaing": "D", "train": "R"}
+    train_cfg = train_config(cfg, ids)
+    assert train_cfg.train.tune_run == "A"
+    eval_cfg = eval_config(train_cfg, ids)
+    assert eval_cfg.eval.train_run == "R" and eval_cfg.train.tune_run == "A"
+    assert dict(eval_cfg.eval.tune_runs) == {"pid_itae": "C", "adaptive_itae": "A"}
+    report_cfg = report_config(eval_cfg, "P", ["E"])
+    assert report_cfg.report.pipeline_run == "P" and list(report_cfg.report.eval_runs) == ["E"]
+    assert report_cfg.eval.train_run == "R"  # the report run's params record the whole chain
+    # The pipeline's own config, and each step's, stay as they were.
+    assert OmegaConf.to_container(cfg) == before
+    assert train_cfg.eval.train_run is None and eval_cfg.report.pipeline_run is None
+    # Configured gains: no tune run is wired into train; configured baselines: none into eval.
+    assert train_config(compose_config(["train.gains=config"]), ids).train.tune_run is None
+    configured = eval_config(compose_config(["eval.baseline_gains=config"]), ids)
+    assert dict(configured.eval.tune_runs) == {}
 
 
 def test_computed_torque_is_tuned_under_the_comparisons_criterion() -> None:

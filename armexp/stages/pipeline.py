@@ -3,7 +3,9 @@
 
 Each stage runs as a nested child run of the pipeline's run, wired to its upstream runs by id
 (``train.tune_run``, ``eval.train_run``, ``eval.tune_runs``, ``report.pipeline_run``), so the
-lineage tags point inside this pipeline. The tune steps (`tune_steps`): ``tune``, the configured
+lineage tags point inside this pipeline. Each step runs on a config of its own, a copy of the
+pipeline's with its upstream ids set (`train_config`, `eval_config`, `report_config`); the
+pipeline's own config is never changed. The tune steps (`tune_steps`): ``tune``, the configured
 controller under the comparison's criterion (``tuner.objective.criterion``); ``tune_<baseline>``
 for every baseline of ``eval.baselines`` under its own criterion (``tune_pid_gaing``,
 ``tune_pid_itae``, ``tune_computed_torque``); and ``tune_adaptive_<criterion>``, the adaptive law
@@ -20,7 +22,8 @@ from __future__ import annotations
 
 import copy
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import mlflow
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -92,7 +95,7 @@ def tune_steps(cfg: DictConfig) -> dict[str, tuple[str, str]]:
     return steps
 
 
-def eval_tune_runs(cfg: DictConfig, ids: dict[str, str]) -> dict[str, str]:
+def eval_tune_runs(cfg: DictConfig, ids: Mapping[str, str]) -> dict[str, str]:
     """``eval.tune_runs`` from the tune steps' run ids (`tune_steps`): each baseline's, and each
     ``adaptive_<criterion>`` reference's."""
     steps = tune_steps(cfg)
@@ -109,23 +112,46 @@ def eval_tune_runs(cfg: DictConfig, ids: dict[str, str]) -> dict[str, str]:
     return out
 
 
+def with_values(cfg: DictConfig, values: Mapping[str, Any]) -> DictConfig:
+    """A copy of ``cfg`` with each dotted key of ``values`` set to its value (a mapping replaces
+    the node, it is not merged into it); ``cfg`` is left as it was."""
+    out = copy.deepcopy(cfg)
+    with open_dict(out):
+        for key, value in values.items():
+            OmegaConf.update(out, key, value, merge=False)
+    return out
+
+
+def train_config(cfg: DictConfig, ids: Mapping[str, str]) -> DictConfig:
+    """The train step's config: with tuned gains, ``train.tune_run`` is this pipeline's ``tune``
+    run (tagged ``armexp.tune_run`` on the train run and hashed into its inputs)."""
+    return with_values(cfg, {"train.tune_run": ids["tune"]} if cfg.train.gains == "tuned" else {})
+
+
+def eval_config(cfg: DictConfig, ids: Mapping[str, str]) -> DictConfig:
+    """The eval step's config: ``eval.train_run`` is this pipeline's train run and, with tuned
+    baseline gains, ``eval.tune_runs`` its tune steps' runs (`eval_tune_runs`)."""
+    values: dict[str, Any] = {"eval.train_run": ids["train"]}
+    if cfg.eval.baseline_gains == "tuned":
+        values["eval.tune_runs"] = eval_tune_runs(cfg, ids)
+    return with_values(cfg, values)
+
+
 def paper_gains_config(cfg: DictConfig) -> DictConfig:
     """The paper-gains row of a study: the policy with the configured (the paper's) adaptive
     gains, alone."""
-    out = copy.deepcopy(cfg)
-    with open_dict(out):
-        out.eval.adaptive_gains = "config"
-        out.eval.baselines = []
-        out.eval.ablation = False
-        out.eval.tune_runs = {}
-    return out
+    return with_values(
+        cfg,
+        {"eval.adaptive_gains": "config", "eval.baselines": [], "eval.ablation": False,
+         "eval.tune_runs": {}},
+    )  # fmt: skip
 
 
-def _with_seed(cfg: DictConfig, seed: int) -> DictConfig:
-    out = copy.deepcopy(cfg)
-    with open_dict(out):
-        out.seed = seed
-    return out
+def report_config(cfg: DictConfig, pipeline_run: str, eval_runs: Sequence[str]) -> DictConfig:
+    """The report step's config: the report of ``pipeline_run`` over ``eval_runs``."""
+    return with_values(
+        cfg, {"report.pipeline_run": pipeline_run, "report.eval_runs": list(eval_runs)}
+    )
 
 
 def run_one(
@@ -141,7 +167,9 @@ def run_one(
 
     seed = int(cfg.seed)
     tune_cfgs = {
-        step: with_criterion(_with_seed(controller_config(cfg, controller), seed), criterion)
+        step: with_criterion(
+            with_values(controller_config(cfg, controller), {"seed": seed}), criterion
+        )
         for step, (controller, criterion) in tune_steps(cfg).items()
     }
     ids: dict[str, str] = {}
@@ -180,28 +208,23 @@ def run_one(
 
         for tune_step, tune_cfg in tune_cfgs.items():
             step(tune_step, tune.READS, tune_cfg, tune.run)
-        with open_dict(cfg):
-            if cfg.train.gains == "tuned":
-                cfg.train.tune_run = ids["tune"]
-            stopped = reuse.resumable(cfg, train.READS) if cfg.pipeline.reuse else None
-            if stopped and not reuse.reusable(cfg, train.READS):
-                print(f"pipeline: train resumes the interrupted run {stopped}")
-                mlflow.set_tag(RESUMED_PREFIX + "train", stopped)
-                cfg.train.resume = stopped
-                step("train", train.READS, cfg, lambda c: train.resume(c, check_overrides=False))
-                cfg.train.resume = None
-            else:
-                step("train", train.READS, cfg, train.run)
-            cfg.eval.train_run = ids["train"]
-            if cfg.eval.baseline_gains == "tuned":
-                cfg.eval.tune_runs = eval_tune_runs(cfg, ids)
-            step("eval", evaluate.READS, cfg, evaluate.run)
-            if paper_gains_row:
-                step("eval_paper", evaluate.READS, paper_gains_config(cfg), evaluate.run)
-            if report_:
-                cfg.report.pipeline_run = parent_id
-                cfg.report.eval_runs = [ids["eval"]]
-                step("report", None, cfg, report.run)
+        # Each step gets a config of its own with its upstream run ids (`train_config`,
+        # `eval_config`, `report_config`), the keys a stage reads them from when run alone.
+        train_cfg = train_config(cfg, ids)
+        stopped = reuse.resumable(train_cfg, train.READS) if cfg.pipeline.reuse else None
+        if stopped and not reuse.reusable(train_cfg, train.READS):
+            print(f"pipeline: train resumes the interrupted run {stopped}")
+            mlflow.set_tag(RESUMED_PREFIX + "train", stopped)
+            step("train", train.READS, with_values(train_cfg, {"train.resume": stopped}),
+                 lambda c: train.resume(c, check_overrides=False))  # fmt: skip
+        else:
+            step("train", train.READS, train_cfg, train.run)
+        eval_cfg = eval_config(train_cfg, ids)
+        step("eval", evaluate.READS, eval_cfg, evaluate.run)
+        if paper_gains_row:
+            step("eval_paper", evaluate.READS, paper_gains_config(eval_cfg), evaluate.run)
+        if report_:
+            step("report", None, report_config(eval_cfg, parent_id, [ids["eval"]]), report.run)
         mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(ids)), "runs.yaml")
         print(
             f"pipeline: run {parent_id} | "

@@ -14,11 +14,10 @@ runs with ``pipeline.reuse=true``, so every stage whose inputs match a FINISHED 
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import mlflow
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf
 
 from armexp.config import ConfigError
 from armexp.tracking import run_names, stage_runs
@@ -49,11 +48,9 @@ def run_study(cfg: DictConfig) -> stage_runs.StageResult:
     ) as parent:
         parent_id = parent.info.run_id
         for seed in seeds:
-            seed_cfg = copy.deepcopy(cfg)
-            with open_dict(seed_cfg):
-                seed_cfg.seed = seed
-                seed_cfg.pipeline.seeds = []
-                seed_cfg.pipeline.reuse = True
+            seed_cfg = pipeline.with_values(
+                cfg, {"seed": seed, "pipeline.seeds": [], "pipeline.reuse": True}
+            )
             print(f"study: seed {seed} ({seeds.index(seed) + 1} of {len(seeds)})")
             try:
                 with stage_runs.parent(parent_id):
@@ -77,12 +74,11 @@ def run_study(cfg: DictConfig) -> stage_runs.StageResult:
             evals += [steps[s] for s in ("eval", "eval_paper") if s in steps]
         if not evals:
             raise RuntimeError(f"every seed of the study failed: {failed}")
-        with open_dict(cfg):
-            cfg.report.pipeline_run = parent_id
-            cfg.report.eval_runs = evals
-            cfg.report.seeds = seeds
+        report_cfg = pipeline.with_values(
+            pipeline.report_config(cfg, parent_id, evals), {"report.seeds": seeds}
+        )
         with stage_runs.parent(parent_id):
-            ids["report"] = report.run(cfg).run_id
+            ids["report"] = report.run(report_cfg).run_id
         mlflow.set_tag(RUN_PREFIX + "report", ids["report"])
         summary: dict[str, Any] = {"runs": ids, "failed_seeds": failed}
         mlflow.log_text(OmegaConf.to_yaml(OmegaConf.create(summary)), "runs.yaml")
