@@ -169,19 +169,6 @@ def _without_credentials(overrides: list[str]) -> list[str]:
     return out
 
 
-def imply_gains_source(stage: str, overrides: list[str]) -> list[str]:
-    """``controller.gains=<preset>`` (or ``controller.gains.a0=…``) on a train command means
-    "train with these gains", not "with a tune run's": add ``train.gains=config`` unless the
-    user chose ``train.gains`` themselves."""
-    if stage not in ("train", "pipeline") or any(o.startswith("train.gains=") for o in overrides):
-        return overrides
-    keys = [o.lstrip("+~").partition("=")[0] for o in overrides]
-    if any(k in ("controller.gains", "controller/gains") or k.startswith("controller.gains.")
-           for k in keys):  # fmt: skip
-        return [*overrides, "train.gains=config"]
-    return overrides
-
-
 def run_stage(stage: str, args: Sequence[str]) -> int:
     from armexp.config import (
         ConfigError,
@@ -193,7 +180,7 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
 
     try:
         line = split_args([expand_home(a) for a in args])
-        overrides = _without_credentials(imply_gains_source(stage, line.overrides))
+        overrides = _without_credentials(line.overrides)
         if not line.runs_no_job:
             overrides = precheck(
                 stage, overrides, line.multirun, _search_path(line), not line.shows_config

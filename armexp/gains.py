@@ -5,6 +5,8 @@ per-robot defaults, ``conf/per_robot/<controller>_<robot>.yaml``) or those of a 
 by id, or the latest FINISHED tune run with that controller, robot and tuning criterion
 (docs/design.md §5). `resolve` returns them typed (`Gains`: the values in config form, the
 criterion and horizon they were tuned under, the tune run) so callers record their source.
+`train_source` says which of the two train takes, from ``train.gains`` and what the command typed:
+gains typed on a train or pipeline command (``controller.gains=paper``) are trained with.
 
 The criterion of a tune run is its param ``tuner.objective.criterion`` (or its tag
 ``armexp.criterion``); tune runs made before the criterion was a choice have neither and are
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -157,6 +160,44 @@ def resolve(
     if source == CONFIG:
         return configured(cfg, controller, robot)
     return tuned(cfg, controller, robot, criterion or criterion_of(cfg), run_id, key)
+
+
+#: Command-line keys that choose the controller's gains themselves (``controller.gains=paper``,
+#: ``controller/gains=paper``, ``controller.gains.a0=…``).
+_GAINS_KEYS = ("controller.gains", "controller/gains")
+
+
+def train_source(cfg: DictConfig, overrides: Sequence[str]) -> str:
+    """Where train takes the controller's gains from, given the command's ``overrides``:
+    ``train.gains`` when the command sets it; else ``config`` when the command chooses the
+    controller's gains (a train command that types gains means "train with these", not "with a
+    tune run's"); else ``train.gains`` as composed (``tuned`` by default)."""
+    keys = [o.lstrip("+~").partition("=")[0] for o in overrides]
+    if "train.gains" in keys:
+        return str(cfg.train.gains)
+    if any(k in _GAINS_KEYS or k.startswith(f"{_GAINS_KEYS[0]}.") for k in keys):
+        return CONFIG
+    return str(cfg.train.gains)
+
+
+def with_train_source(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
+    """``cfg`` with ``train.gains`` set to `train_source` (a copy when that changes it, ``cfg``
+    itself otherwise), so the run's params and its reuse digest record where its gains came from."""
+    source = train_source(cfg, overrides)
+    if source == str(cfg.train.gains):
+        return cfg
+    out = copy.deepcopy(cfg)
+    with open_dict(out):
+        out.train.gains = source
+    return out
+
+
+def job_overrides() -> list[str]:
+    """The command-line overrides of the running Hydra job (none outside one, e.g. a library
+    call): what `train_source` is given by the stages."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
 
 
 def without_adaptation(values: dict[str, Any]) -> dict[str, Any]:

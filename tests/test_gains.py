@@ -129,3 +129,25 @@ def test_with_criterion_copies(compose: Callable[..., DictConfig]) -> None:
     before = gains.criterion_of(cfg)
     changed = gains.with_criterion(cfg, "iae")
     assert gains.criterion_of(changed) == "iae" and gains.criterion_of(cfg) == before
+
+
+@pytest.mark.parametrize(
+    ("overrides", "source"),
+    [
+        ([], "tuned"),
+        (["seed=3", "controller.dt=0.002"], "tuned"),
+        (["controller.gains=paper"], "config"),
+        (["controller/gains=paper"], "config"),
+        (["controller.gains.a0=500"], "config"),
+        (["controller.gains=paper", "train.gains=tuned"], "tuned"),
+    ],
+)
+def test_gains_typed_on_the_command_are_the_ones_train_takes(
+    compose: Callable[..., DictConfig], overrides: list[str], source: str
+) -> None:
+    cfg = compose(*overrides)
+    assert gains.train_source(cfg, overrides) == source
+    out = gains.with_train_source(cfg, overrides)
+    assert out.train.gains == source
+    assert cfg.train.gains == "tuned"  # the given config is left as it was
+    assert (out is cfg) == (source == "tuned")

@@ -20,6 +20,7 @@ import mlflow
 from omegaconf import DictConfig, OmegaConf
 
 from armexp.config import ConfigError
+from armexp.gains import job_overrides, with_train_source
 from armexp.tracking import run_names, stage_runs
 from armexp.tracking.tags import FAILED_SEEDS_TAG, RUN_PREFIX, STUDY_TAG
 
@@ -28,9 +29,11 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
     """`armexp pipeline`: one pipeline (`armexp.stages.pipeline.run_one`), or with
     ``pipeline.seeds`` a study of one pipeline per seed; the parent run, with the stage runs'
     ids by step as its summary. The command lives here so that the study, which runs
-    pipelines, is the only module that knows both."""
+    pipelines, is the only module that knows both. Its ``train.gains`` is as the command meant
+    it (`armexp.gains.with_train_source`)."""
     from armexp.stages import pipeline
 
+    cfg = with_train_source(cfg, job_overrides())
     return run_study(cfg) if cfg.pipeline.seeds else pipeline.run_one(cfg)
 
 

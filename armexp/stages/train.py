@@ -2,8 +2,9 @@
 
 Gains come from a tune run (``train.tune_run`` or the latest FINISHED tune run for the same
 controller and robot under ``tuner.objective.criterion``; its id is tagged ``armexp.tune_run``)
-or, with ``train.gains=config``, from ``controller.gains`` (``controller.gains=paper`` selects
-that automatically); `armexp.gains.resolve` finds them.
+or, with ``train.gains=config``, from ``controller.gains`` (gains typed on the command,
+``controller.gains=paper``, select that unless ``train.gains`` is typed too:
+`armexp.gains.train_source`); `armexp.gains.resolve` finds them.
 
 Streams to MLflow while training: SB3's own metrics (``train/*``, ``rollout/*``, ``time/*``) and,
 per episode, reward, length, success and collision with their rates over the last 100 episodes.
@@ -50,7 +51,7 @@ from armexp.agents.sac import ResumableSAC, build_sac, load_sac
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
-from armexp.gains import resolve
+from armexp.gains import job_overrides, resolve, with_train_source
 from armexp.reads import Reads
 from armexp.tracking import artifacts, liveness, lookup, remote, run_end, stage_runs, store
 from armexp.tracking.tags import (
@@ -111,7 +112,9 @@ def step_budget(cfg: DictConfig) -> int:
 
 
 def run(composed: DictConfig) -> stage_runs.StageResult:
-    """Train on `READS`' view of the composed config; the run logs the composed config whole."""
+    """Train on `READS`' view of the composed config, its ``train.gains`` as the command meant it
+    (`armexp.gains.with_train_source`); the run logs that config whole."""
+    composed = with_train_source(composed, job_overrides())
     cfg = READS.view(composed)
     if cfg.train.resume:
         return resume(composed)
