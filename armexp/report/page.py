@@ -10,10 +10,12 @@ from typing import Any
 import pandas as pd
 from omegaconf import DictConfig
 
+from armexp.paper import TASKS
 from armexp.report import (
     claims,
     comparison,
     figures,
+    formatting,
     gather,
     labels,
     performance,
@@ -23,7 +25,8 @@ from armexp.report import (
     tuning,
 )
 from armexp.report.agent import AgentInfo
-from armexp.report.runs import TASKS, TRAIN_RUN_TAG, Reader, Selection
+from armexp.report.episodes import agent_names, proposed_labels
+from armexp.report.runs import TRAIN_RUN_TAG, Reader, Selection
 
 #: Above this many train runs the per-run training curves give way to the across-seed ones.
 MAX_TRAINING_CURVES = 4
@@ -78,15 +81,15 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
 
 def _tables(
     episodes: pd.DataFrame,
-    ctx: tables.Context,
+    ctx: formatting.Context,
     train_cfg: dict[str, Any] | None,
     agents: dict[str, AgentInfo],
     train_id: str,
     tunes: list[dict[str, Any]],
-) -> list[tables.Table]:
+) -> list[formatting.Table]:
     """The report's tables, the summary first; the ablation, tuning and CSO tables only where
     the selection has something to put in them."""
-    made: list[tables.Table] = []
+    made: list[formatting.Table] = []
     if train_cfg:
         trains = sorted(
             {a.train_run: a for a in agents.values() if a.known}.values(),
@@ -131,7 +134,7 @@ def _paper_figures(
     proposed control and each baseline, 6 of the proposed control and its main baseline (the
     one compared with it; more panels than two per joint stop being readable)."""
     first = episodes[episodes.eval_run == run_id]
-    proposed = performance.proposed_labels(first)
+    proposed = proposed_labels(first)
     if not proposed or not train_cfg:
         return
     ours = proposed[0]
@@ -205,14 +208,14 @@ def _run_figures(
     groups = gather.held_out_curves(selection, reader, agents)
     if groups:
         save(
-            seed_figures.learning_curves_ci(groups, n_boot=performance.N_BOOT),
+            seed_figures.learning_curves_ci(groups, n_boot=formatting.N_BOOT),
             "learning_curves",
             "Learning curves: held-out success of the policy as it trained, IQM across seeds "
             "with a 95 % stratified bootstrap band, per agent preset.",
         )
-    short = performance.agent_names(episodes)
+    short = agent_names(episodes)
     named = episodes.assign(agent=episodes.agent.map(short)) if short else episodes
-    profiles = seed_figures.performance_profiles(named, n_boot=performance.N_BOOT)
+    profiles = seed_figures.performance_profiles(named, n_boot=formatting.N_BOOT)
     if profiles is not None:
         save(
             profiles,
@@ -225,7 +228,7 @@ def _run_figures(
 
 def index_page(
     folder: Path,
-    made: list[tables.Table],
+    made: list[formatting.Table],
     pictures: list[tuple[str, str]],
     animations: list[tuple[str, str, dict[str, str]]],
     runs_frame: pd.DataFrame,
@@ -322,7 +325,9 @@ def _by_id(selection: Selection, ids: list[str]) -> list[Any]:
     return [runs[i] for i in ids]
 
 
-def _glance(summary_table: tables.Table | None, selection: Selection, cfg: DictConfig) -> list[str]:
+def _glance(
+    summary_table: formatting.Table | None, selection: Selection, cfg: DictConfig
+) -> list[str]:
     """The page's opening: what ran (runs, seeds, agents, gains), held-out success and the
     claim check's verdicts per agent, with links to the eval runs in the MLflow UI."""
     ui = ui_base(cfg)
@@ -358,7 +363,7 @@ def _glance(summary_table: tables.Table | None, selection: Selection, cfg: DictC
     return ["<h2>At a glance</h2>", "<ul class='glance'>", *items, "</ul>"]
 
 
-def _verdict_items(summary_table: tables.Table) -> list[str]:
+def _verdict_items(summary_table: formatting.Table) -> list[str]:
     """Per agent and baseline: held-out success and the two verdicts; after each agent's rows
     the ablation's sentence."""
     conv, acc = (f"verdict (≈ {100 * c.claimed:.0f} %)" for c in claims.CLAIMS)
