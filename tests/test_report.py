@@ -450,6 +450,54 @@ def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
     assert AgentInfo("t", "sac_paper", []).label == "sac_paper (plain SAC, no learning aids)"
 
 
+def test_a_train_run_without_its_config_names_its_aids_from_its_params() -> None:
+    from types import SimpleNamespace
+
+    from omegaconf import OmegaConf
+
+    from armexp import tracking
+    from armexp.config import compose_config
+    from armexp.report.agent import agent_info, aids_of
+
+    cfg = compose_config(["agent=sac_quick"])
+    run = SimpleNamespace(
+        data=SimpleNamespace(params=tracking.flatten(cfg), tags={}, metrics={}),
+        info=SimpleNamespace(status="FINISHED"),
+    )
+    from_params = agent_info("t", cast(Any, run), None)
+    agent = OmegaConf.to_container(cfg.agent)
+    assert isinstance(agent, dict)
+    assert from_params.aids == aids_of(cast(dict[str, Any], agent)) and from_params.aided
+    assert [a.name for a in from_params.aids][:2] == ["demonstrations", "behaviour cloning"]
+    # An aid stored by its preset name without a _target_ is read by that name.
+    (named,) = aids_of({"aids": {"averaging": {"tail": 0.5}}})
+    assert (named.name, named.privileged) == ("weight averaging", False)
+    assert named.detail == "final actor averaged over the last 50 % of the budget"
+
+
+def test_the_aids_by_name_are_the_presets_aids_and_declare_privileged_knowledge() -> None:
+    from armexp.agents import aids
+    from armexp.agents.addons import TrainingAddOn
+    from armexp.config import compose_config
+
+    for preset in ("sac_quick", "sac_demo"):
+        specs = compose_config([f"agent={preset}"]).agent.aids
+        assert {name: spec._target_ for name, spec in specs.items()} == aids.TARGETS, preset
+    privileged = {}
+    for name, target in aids.TARGETS.items():
+        found = aids.addon_class(target)
+        assert found is not None and issubclass(found, TrainingAddOn) and found.title
+        assert aids.addon_class(name) is found
+        privileged[name] = found.privileged
+    assert privileged == {
+        "demonstrations": True, "cloning": True, "expert": True, "averaging": False,
+    }  # fmt: skip
+    assert aids.addon_class("armexp.agents.expert.ExpertLabels") is None
+    assert aids.privileged_modules() == (
+        "armexp.agents.demonstrations", "armexp.agents.cloning", "armexp.agents.expert",
+    )  # fmt: skip
+
+
 def test_out_dir_that_is_not_a_report_is_refused_and_left_as_it_was(
     store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

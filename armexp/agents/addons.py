@@ -7,14 +7,17 @@ they apply, as ``callbacks:`` lists do in lightning-hydra-template::
       demonstrations: {_target_: armexp.agents.demonstrations.PlannerDemonstrations, episodes: 1000}
       cloning: {_target_: armexp.agents.cloning.BehaviourCloning, weight: 3.0}
 
-Each aid gets the model and the environment's settings before training (`TrainingAddOn.setup`,
-which may return SB3 callbacks) and may change the model after it (`TrainingAddOn.finish`,
-which returns ``final/*`` metrics). Aids that use the planner's or the obstacles' knowledge
-make a run *aided* (docs/design.md §7); the report says so for every table built from one.
+`armexp.agents.aids` knows the aids by name. Each aid gets the model and the environment's
+settings before training (`TrainingAddOn.setup`, which may return SB3 callbacks) and may change
+the model after it (`TrainingAddOn.finish`, which returns ``final/*`` metrics). Aids that use the
+planner's or the obstacles' knowledge declare it (``privileged``) and make a run *aided*
+(docs/design.md §7); the report says so for every table built from one, and names each aid by
+its ``title`` and ``describe``.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -58,6 +61,8 @@ class TrainingAddOn:
 
     #: Uses privileged knowledge (the planner, the obstacles): the run is aided.
     privileged: ClassVar[bool] = False
+    #: Its short name in the report's captions (empty: the class name).
+    title: ClassVar[str] = ""
     #: Aids that must come before this one in ``agent.aids`` (by class).
     needs: ClassVar[tuple[type[TrainingAddOn], ...]] = ()
 
@@ -68,6 +73,22 @@ class TrainingAddOn:
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         """After training, before the final model is saved; metrics to log."""
         return {}
+
+    @classmethod
+    def describe(cls, args: Mapping[str, Any]) -> str:
+        """What the aid does with the arguments ``args`` (its config, as a stored run logged
+        it), for the report's Table II."""
+        return cls.title or cls.__name__
+
+
+def number_arg(args: Mapping[str, Any], key: str) -> float:
+    """Argument ``key`` of a stored aid config as a number (0 when missing or not a number):
+    the report describes old runs too, whatever they logged."""
+    try:
+        value = float(args.get(key))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return 0.0
+    return value if math.isfinite(value) else 0.0
 
 
 def build_addons(specs: Mapping[str, Any], where: str = "agent.aids") -> list[TrainingAddOn]:

@@ -11,14 +11,14 @@ the critics, optimisers and entropy coefficient stay as trained.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import cast
+from collections.abc import Callable, Mapping
+from typing import Any, cast
 
 import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.addons import TrainingAddOn, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext, number_arg
 
 
 class ActorAverage(BaseCallback):
@@ -67,6 +67,13 @@ class WeightAveraging(TrainingAddOn):
     """The final actor is the mean of its weights over the last ``tail`` share of the budget
     (`ActorAverage`; ``final/averaged_actors`` says how many). The checkpoint keeps the last
     weights; a resumed run averages from where it resumes. Uses no privileged knowledge."""
+
+    title = "weight averaging"
+
+    @classmethod
+    def describe(cls, args: Mapping[str, Any]) -> str:
+        tail = number_arg(args, "tail") * 100
+        return f"final actor averaged over the last {tail:g} % of the budget"
 
     def __init__(self, tail: float) -> None:
         if not 0.0 < float(tail) <= 1.0:

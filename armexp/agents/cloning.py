@@ -22,13 +22,14 @@ part of a checkpoint: a resumed run labels afresh.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.addons import TrainingAddOn, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext, number_arg
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 
 if TYPE_CHECKING:
@@ -129,6 +130,11 @@ class BehaviourCloning(TrainingAddOn):
 
     privileged = True
     needs = (PlannerDemonstrations,)
+    title = "behaviour cloning"
+
+    @classmethod
+    def describe(cls, args: Mapping[str, Any]) -> str:
+        return f"behaviour cloning of the demonstrations (weight {number_arg(args, 'weight'):g})"
 
     def __init__(self, weight: float) -> None:
         if not float(weight) > 0:

@@ -12,13 +12,15 @@ ordinary transitions in the replay buffer, and the policy is SAC's own.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from armexp.agents.addons import TrainingAddOn, TrainingContext
+from armexp.agents.addons import TrainingAddOn, TrainingContext, number_arg
 from armexp.envs.reach import ReachEnv
 from armexp.sim.model import Array
 
@@ -150,6 +152,11 @@ class PlannerDemonstrations(TrainingAddOn):
     obstacles."""
 
     privileged = True
+    title = "demonstrations"
+
+    @classmethod
+    def describe(cls, args: Mapping[str, Any]) -> str:
+        return f"{int(number_arg(args, 'episodes'))} planner demonstrations in the replay buffer"
 
     def __init__(self, episodes: int) -> None:
         if int(episodes) < 1:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import itertools
 from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
@@ -197,6 +198,11 @@ class DaggerExpert(TrainingAddOn):
 
     privileged = True
     needs = (BehaviourCloning,)
+    title = "DAgger expert"
+
+    @classmethod
+    def describe(cls, args: Mapping[str, Any]) -> str:
+        return "DAgger: the planner's action cloned on every visited state"
 
     def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
         if not float(margin) > 0 or int(lookahead) < 1:
