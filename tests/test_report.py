@@ -277,6 +277,24 @@ def _row(markdown: str, start: str) -> list[str]:
     return [cell.strip() for cell in line.strip("|").split(" | ")]
 
 
+@pytest.mark.slow
+def test_an_aided_run_is_reported_without_agent_code(
+    hand_reports: dict[str, Path], tmp_path: Path
+) -> None:
+    # The aids' declarations are plain data (armexp.aids): naming them imports no add-on.
+    runs = hand_reports["sac_quick"].parent / "runs"
+    blocked = ["armexp.sim", "armexp.envs", "armexp.agents", "armexp.tune", "torch"]
+    code = (
+        "from armexp.cli import main\n"
+        f"sys.exit(main(['report', 'tracking.runs_dir={runs}', 'report.out_dir={tmp_path}/r']))\n"
+    )
+    res = run_without(blocked, code, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    table = _text(tmp_path / "r", "table2_agent", "md")
+    assert table == _text(hand_reports["sac_quick"], "table2_agent", "md")
+    assert "| Aided | yes: demonstrations, behaviour cloning, DAgger expert" in table
+
+
 def test_table_two_names_the_preset_its_aids_and_the_budget_spent(
     hand_reports: dict[str, Path],
 ) -> None:
@@ -475,24 +493,27 @@ def test_a_train_run_without_its_config_names_its_aids_from_its_params() -> None
     assert named.detail == "final actor averaged over the last 50 % of the budget"
 
 
-def test_the_aids_by_name_are_the_presets_aids_and_declare_privileged_knowledge() -> None:
-    from armexp.agents import aids
+def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() -> None:
+    import importlib
+
+    from armexp import aids
     from armexp.agents.addons import TrainingAddOn
     from armexp.config import compose_config
 
     for preset in ("sac_quick", "sac_demo"):
         specs = compose_config([f"agent={preset}"]).agent.aids
-        assert {name: spec._target_ for name, spec in specs.items()} == aids.TARGETS, preset
-    privileged = {}
-    for name, target in aids.TARGETS.items():
-        found = aids.addon_class(target)
-        assert found is not None and issubclass(found, TrainingAddOn) and found.title
-        assert aids.addon_class(name) is found
-        privileged[name] = found.privileged
-    assert privileged == {
+        assert {name: spec._target_ for name, spec in specs.items()} == {
+            a.name: a.target for a in aids.AIDS
+        }, preset
+    for declaration in aids.AIDS:
+        module, _, name = declaration.target.rpartition(".")
+        addon = getattr(importlib.import_module(module), name)
+        assert issubclass(addon, TrainingAddOn) and addon.declaration is declaration
+        assert aids.declared(declaration.name) is aids.declared(declaration.target) is declaration
+    assert {a.name: a.privileged for a in aids.AIDS} == {
         "demonstrations": True, "cloning": True, "expert": True, "averaging": False,
     }  # fmt: skip
-    assert aids.addon_class("armexp.agents.expert.ExpertLabels") is None
+    assert aids.declared("armexp.agents.expert.ExpertLabels") is None
     assert aids.privileged_modules() == (
         "armexp.agents.demonstrations", "armexp.agents.cloning", "armexp.agents.expert",
     )  # fmt: skip

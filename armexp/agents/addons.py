@@ -7,23 +7,22 @@ they apply, as ``callbacks:`` lists do in lightning-hydra-template::
       demonstrations: {_target_: armexp.agents.demonstrations.PlannerDemonstrations, episodes: 1000}
       cloning: {_target_: armexp.agents.cloning.BehaviourCloning, weight: 3.0}
 
-`armexp.agents.aids` knows the aids by name. Each aid gets the model and the environment's
-settings before training (`TrainingAddOn.setup`, which may return SB3 callbacks) and may change
-the model after it (`TrainingAddOn.finish`, which returns ``final/*`` metrics). Aids that use the
-planner's or the obstacles' knowledge declare it (``privileged``) and make a run *aided*
-(docs/design.md §7); the report says so for every table built from one, and names each aid by
-its ``title`` and ``describe``.
+Each aid gets the model and the environment's settings before training (`TrainingAddOn.setup`,
+which may return SB3 callbacks) and may change the model after it (`TrainingAddOn.finish`,
+which returns ``final/*`` metrics). Each aid points at its declaration in `armexp.aids`, which
+says whether it uses the planner's or the obstacles' knowledge and so makes a run *aided*
+(docs/design.md §7); the report says so for every table built from one.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp.aids import AidDeclaration
 from armexp.config import ConfigError
 from armexp.envs.reach import ReachSettings
 
@@ -59,10 +58,10 @@ class TrainingContext:
 class TrainingAddOn:
     """One add-on to SAC's training (see the module doc)."""
 
-    #: Uses privileged knowledge (the planner, the obstacles): the run is aided.
-    privileged: ClassVar[bool] = False
-    #: Its short name in the report's captions (empty: the class name).
-    title: ClassVar[str] = ""
+    #: Its declaration (`armexp.aids`): its name, whether it uses privileged knowledge (the
+    #: planner, the obstacles: the run is aided), and how the report names it. None: an add-on
+    #: the report names by its ``_target_``.
+    declaration: ClassVar[AidDeclaration | None] = None
     #: Aids that must come before this one in ``agent.aids`` (by class).
     needs: ClassVar[tuple[type[TrainingAddOn], ...]] = ()
 
@@ -73,22 +72,6 @@ class TrainingAddOn:
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         """After training, before the final model is saved; metrics to log."""
         return {}
-
-    @classmethod
-    def describe(cls, args: Mapping[str, Any]) -> str:
-        """What the aid does with the arguments ``args`` (its config, as a stored run logged
-        it), for the report's Table II."""
-        return cls.title or cls.__name__
-
-
-def number_arg(args: Mapping[str, Any], key: str) -> float:
-    """Argument ``key`` of a stored aid config as a number (0 when missing or not a number):
-    the report describes old runs too, whatever they logged."""
-    try:
-        value = float(args.get(key))  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return 0.0
-    return value if math.isfinite(value) else 0.0
 
 
 def build_addons(specs: Mapping[str, Any], where: str = "agent.aids") -> list[TrainingAddOn]:

@@ -11,14 +11,15 @@ the critics, optimisers and entropy coefficient stay as trained.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import Any, cast
+from collections.abc import Callable
+from typing import cast
 
 import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.addons import TrainingAddOn, TrainingContext, number_arg
+from armexp import aids
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 
 
 class ActorAverage(BaseCallback):
@@ -68,12 +69,7 @@ class WeightAveraging(TrainingAddOn):
     (`ActorAverage`; ``final/averaged_actors`` says how many). The checkpoint keeps the last
     weights; a resumed run averages from where it resumes. Uses no privileged knowledge."""
 
-    title = "weight averaging"
-
-    @classmethod
-    def describe(cls, args: Mapping[str, Any]) -> str:
-        tail = number_arg(args, "tail") * 100
-        return f"final actor averaged over the last {tail:g} % of the budget"
+    declaration = aids.AVERAGING
 
     def __init__(self, tail: float) -> None:
         if not 0.0 < float(tail) <= 1.0:

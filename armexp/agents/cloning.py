@@ -22,14 +22,14 @@ part of a checkpoint: a resumed run labels afresh.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.addons import TrainingAddOn, TrainingContext, number_arg
+from armexp import aids
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 
 if TYPE_CHECKING:
@@ -128,13 +128,8 @@ class BehaviourCloning(TrainingAddOn):
     """The cloning term above, with weight ``weight``, on the planner's demonstrations (listed
     before it in ``agent.aids``). Privileged: it imitates the planner."""
 
-    privileged = True
+    declaration = aids.CLONING
     needs = (PlannerDemonstrations,)
-    title = "behaviour cloning"
-
-    @classmethod
-    def describe(cls, args: Mapping[str, Any]) -> str:
-        return f"behaviour cloning of the demonstrations (weight {number_arg(args, 'weight'):g})"
 
     def __init__(self, weight: float) -> None:
         if not float(weight) > 0:

@@ -12,15 +12,14 @@ ordinary transitions in the replay buffer, and the policy is SAC's own.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from armexp.agents.addons import TrainingAddOn, TrainingContext, number_arg
+from armexp import aids
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.envs.reach import ReachEnv
 from armexp.sim.model import Array
 
@@ -151,12 +150,7 @@ class PlannerDemonstrations(TrainingAddOn):
     resumed run's buffer starts empty and gets none. Privileged: the planner knows the
     obstacles."""
 
-    privileged = True
-    title = "demonstrations"
-
-    @classmethod
-    def describe(cls, args: Mapping[str, Any]) -> str:
-        return f"{int(number_arg(args, 'episodes'))} planner demonstrations in the replay buffer"
+    declaration = aids.DEMONSTRATIONS
 
     def __init__(self, episodes: int) -> None:
         if int(episodes) < 1:

@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import itertools
 from collections import OrderedDict
-from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.cloning import BehaviourCloning, DemonstrationCloning
 from armexp.envs.geometry import segment_hits, tips
@@ -196,13 +196,8 @@ class DaggerExpert(TrainingAddOn):
     ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the
     demonstrations. Needs the cloning aid before it. Privileged: the planner labels."""
 
-    privileged = True
+    declaration = aids.EXPERT
     needs = (BehaviourCloning,)
-    title = "DAgger expert"
-
-    @classmethod
-    def describe(cls, args: Mapping[str, Any]) -> str:
-        return "DAgger: the planner's action cloned on every visited state"
 
     def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
         if not float(margin) > 0 or int(lookahead) < 1:

@@ -21,7 +21,7 @@ from typing import Any
 import yaml
 from mlflow.entities import Run
 
-from armexp.agents import aids
+from armexp import aids
 from armexp.report.runs import metric_value
 from armexp.tags import AGENT_PRESET_TAG, STOP_REASON_TAG
 
@@ -96,7 +96,7 @@ def _g(value: Any) -> str:
 @dataclass(frozen=True)
 class _Legacy:
     """An agent key that set an aid before aids were composed from ``agent.aids``: the add-on
-    that does the same now (its name in `armexp.agents.aids.TARGETS`) and the argument the key's
+    that does the same now (its name in `armexp.aids`) and the argument the key's
     value was; or, for an aid since removed, its name, its detail from the value and whether it
     used privileged knowledge."""
 
@@ -123,12 +123,12 @@ LEGACY_AIDS = (
 )  # fmt: skip
 
 
-def _addon_aid(target: str, args: Mapping[str, Any]) -> Aid | None:
-    """The aid of a known add-on (`armexp.agents.aids`), as the add-on describes itself."""
-    found = aids.addon_class(target)
+def _declared_aid(target: str, args: Mapping[str, Any]) -> Aid | None:
+    """The aid of a declared add-on (`armexp.aids`), as its declaration names it."""
+    found = aids.declared(target)
     if found is None:
         return None
-    return Aid(found.title or found.__name__, found.describe(args), found.privileged)
+    return Aid(found.title, found.describe(args), found.privileged)
 
 
 def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) -> list[Aid]:
@@ -138,7 +138,7 @@ def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) ->
     for old in LEGACY_AIDS:
         value = agent.get(old.key)
         if value is True or (value is not False and _num(value) > 0):
-            known = _addon_aid(old.aid, {old.arg: value}) if old.aid else None
+            known = _declared_aid(old.aid, {old.arg: value}) if old.aid else None
             out.append(known or Aid(old.name, old.detail(value), old.privileged))
     if train.get("keep_best") is True and _num(train.get("eval_every")) > 0:
         out.append(
@@ -154,11 +154,11 @@ def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) ->
             continue
         # A spec names its add-on by _target_; one stored without it, by its preset name.
         target = spec.get("_target_")
-        known = _addon_aid(target if isinstance(target, str) else str(key), spec)
+        known = _declared_aid(target if isinstance(target, str) else str(key), spec)
         if known is not None:
             out.append(known)
     for target in _targets(agent):
-        if aids.addon_class(target) is not None:
+        if aids.declared(target) is not None:
             continue  # described above
         module, _, name = target.rpartition(".")
         privileged = any(module.startswith(m) for m in aids.privileged_modules())
