@@ -27,7 +27,7 @@ from urllib.parse import unquote, urlsplit, urlunsplit
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
-from armexp import disk
+from armexp import disk, new_store
 from armexp.config import ConfigError
 from armexp.tracking import anchor, remote
 from armexp.tracking.remote import hide_password
@@ -190,6 +190,8 @@ def _open_sqlite(uri: str, reading: bool) -> None:
     with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
+            if not db.exists():
+                new_store.make(db)
             _open_waiting(db, uri, lambda: _settle(db))
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
