@@ -1,5 +1,5 @@
-"""A new SQLite store starts as a copy of an empty one (`armexp.new_store`), the same store MLflow
-would have made."""
+"""A new SQLite store starts as a copy of an empty one (`armexp.tracking.new_store`), the same
+store MLflow would have made."""
 
 from __future__ import annotations
 
@@ -11,9 +11,8 @@ import mlflow
 import pytest
 from mlflow.tracking import MlflowClient
 
-from armexp import new_store
 from armexp.config import compose_config
-from armexp.tracking import stage_runs
+from armexp.tracking import new_store, stage_runs
 
 
 def _schema(db: Path) -> tuple[list[tuple[str, str]], list[tuple[str]], list[tuple[int, str, str]]]:

@@ -6,6 +6,7 @@ re-exports nothing, so the import graph shows who depends on which job.
 
 * `store`: where a config's store and artifacts are (`store.store_uri`), opening a store once
   and safely, retrying a busy SQLite store, passwords kept out of what armexp logs.
+* `new_store`: a new SQLite store copied from an empty one kept per MLflow version.
 * `anchor`: artifact locations that follow a SQLite store copied or moved to another folder.
 * `remote`: a store across the network (server, database) held to ``tracking.timeout_s``.
 * `stage_runs`: one run per stage execution (`stage_runs.stage_run`): the experiment, params,

@@ -27,9 +27,9 @@ from urllib.parse import unquote, urlsplit, urlunsplit
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
-from armexp import disk, new_store
+from armexp import disk
 from armexp.config import ConfigError
-from armexp.tracking import anchor, remote
+from armexp.tracking import anchor, new_store, remote
 from armexp.tracking.remote import hide_password
 
 #: What a hidden password is shown as; `store_uri` restores it from SECRET_URI_ENV.
