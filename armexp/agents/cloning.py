@@ -22,17 +22,13 @@ part of a checkpoint: a resumed run labels afresh.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
-
-if TYPE_CHECKING:
-    from armexp.agents.sac import ResumableSAC
+from armexp.agents.sac import ResumableSAC
 
 
 class DemonstrationCloning:
@@ -125,9 +121,12 @@ class DemonstrationCloning:
 
 class BehaviourCloning(TrainingAddOn):
     """The cloning term above, with weight ``weight``, on the planner's demonstrations (listed
-    before it in ``agent.aids``). Privileged: it imitates the planner."""
+    before it in ``agent.aids``). Privileged: it imitates the planner. SAC only: the term
+    joins SAC's actor update (`armexp.agents.sac.ResumableSAC`), which the other algorithms'
+    library updates have no place for."""
 
     privileged = True
+    algorithms = frozenset({"sac"})
     needs = (PlannerDemonstrations,)
 
     def __init__(self, weight: float) -> None:
@@ -136,5 +135,7 @@ class BehaviourCloning(TrainingAddOn):
         self.weight = float(weight)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        ctx.shared["cloning"] = DemonstrationCloning(ctx.model, planned(ctx), self.weight, ctx.seed)
+        model = ctx.model
+        assert isinstance(model, ResumableSAC)  # `algorithms` says so
+        ctx.shared["cloning"] = DemonstrationCloning(model, planned(ctx), self.weight, ctx.seed)
         return []
