@@ -21,6 +21,7 @@ from typing import Any
 
 import pandas as pd
 
+from armexp.config.agent_schema import TITLES
 from armexp.report.agent import AgentInfo, aids_of, caption
 
 
@@ -230,17 +231,27 @@ PAPER_TABLE_II: dict[str, Any] = {
 
 
 def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Table:
-    """Agent parameters as used, beside the paper's: the preset and its learning aids (whether
-    any uses privileged knowledge), the SAC settings, and the budget configured and spent.
+    """Agent parameters as used, beside the paper's: the preset, its algorithm and learning aids
+    (whether any uses privileged knowledge), the algorithm's settings (the shared ones it does not
+    read shown as "–"; its own after them), and the budget configured and spent.
 
     ``agents``: the selection's train runs (the first is the one whose config is ``train_cfg``);
     none: the aids are read from ``train_cfg`` and the budget spent is not known.
     """
     agent, env, robot = train_cfg["agent"], train_cfg["env"], train_cfg["robot"]
     paper = PAPER_TABLE_II
+    algo = str(agent.get("algo") or "sac")
     infos = list(agents) or [
-        AgentInfo("", str(agent.get("name", "?")), aids_of(agent, train_cfg.get("train") or {}))
-    ]
+        AgentInfo(
+            "", str(agent.get("name", "?")), aids_of(agent, train_cfg.get("train") or {}),
+            algo=algo,
+        )
+    ]  # fmt: skip
+    title = TITLES.get(algo, algo)
+    left_out = set(infos[0].left_out)
+
+    def used(key: str, value: Any) -> Any:
+        return f"– (not {title}'s)" if key in left_out else value
 
     def bounds(values: Sequence[float]) -> str:
         return ", ".join(f"q̇{j + 1}: [−{b:g}, +{b:g}]" for j, b in enumerate(values))
@@ -294,6 +305,7 @@ def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Ta
         nets = f"actor {nets}, critics " + "×".join(str(int(u)) for u in agent["critic_arch"])
     rows: list[tuple[str, Any, Any]] = [
         ("Preset", ", ".join(dict.fromkeys(i.preset for i in infos)), "plain SAC"),
+        ("Algorithm", ", ".join(dict.fromkeys(i.algorithm for i in infos)), "SAC"),
         ("Learning aids", aids, "none"),
         ("Aided", aided, "no"),
         (
@@ -301,23 +313,32 @@ def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Ta
             bounds(robot["velocity_bound"]),
             bounds(paper["velocity_bound"]),
         ),
-        ("Batch size", agent["batch_size"], paper["batch_size"]),
-        ("Target smoothing factor", agent["tau"], paper["tau"]),
-        ("Experience buffer length", agent["buffer_size"], paper["buffer_size"]),
-        ("Initial random steps", agent["learning_starts"], paper["learning_starts"]),
+        *[
+            (label, used(key, agent[key]), paper[key])
+            for label, key in (
+                ("Batch size", "batch_size"),
+                ("Target smoothing factor", "tau"),
+                ("Experience buffer length", "buffer_size"),
+                ("Initial random steps", "learning_starts"),
+            )
+        ],
         ("Discount factor", agent["gamma"], paper["gamma"]),
         ("Time step (s)", env["action_period"], paper["action_period"]),
         ("Max time steps/episode", env["max_steps"], paper["max_steps"]),
         ("Learning rate", lr, paper["learning_rate"]),
-        ("n-step returns", agent.get("n_steps", 1), "–"),
+        ("n-step returns", used("n_steps", agent.get("n_steps", 1)), "–"),
         ("Hidden layers", nets or "–", "–"),
         ("Parallel environments", agent.get("n_envs", 1), "–"),
         (
             "Gradient steps per update",
-            f"{_plain(agent['gradient_steps'])} every {_plain(agent['train_freq'])} step(s)",
+            used(
+                "gradient_steps",
+                f"{_plain(agent['gradient_steps'])} every {_plain(agent['train_freq'])} step(s)",
+            ),
             "–",
         ),
         ("Gradients", agent.get("gradients", "autograd"), "–"),
+        *_own_options(agent, algo, title),
         (
             "Training budget",
             budget,
@@ -349,6 +370,18 @@ def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Ta
         notes,
         caption=caption(infos),
     )
+
+
+def _own_options(agent: dict[str, Any], algo: str, title: str) -> list[tuple[str, Any, Any]]:
+    """Table II rows of the options only ``algo`` has (its ``agent.<algo>`` section), and the
+    entropy temperature where the algorithm has one."""
+    rows: list[tuple[str, Any, Any]] = []
+    if algo in ("sac", "tqc", "crossq"):
+        rows.append(("Entropy coefficient", agent.get("ent_coef", "auto"), "–"))
+    own = agent.get(algo)
+    if isinstance(own, dict):
+        rows += [(f"{title}: {key}", value, "–") for key, value in own.items()]
+    return rows
 
 
 def _params_table(name: str, title: str, rows: list[tuple[str, Any]]) -> Table:
