@@ -30,7 +30,7 @@ from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.algorithms import ResumableCrossQ, ResumableTD3, ResumableTQC, ResumeRefill
-from armexp.agents.sac import ResumableSAC, build_sac, load_sac
+from armexp.agents.sac import ResumableSAC, build_sac, load_sac, sac_kwargs
 from armexp.config.agent_schema import ALGORITHMS, TITLES
 from armexp.resources import device_here
 
@@ -42,6 +42,7 @@ class Algorithm:
 
     name: str
     cls: type[BaseAlgorithm]
+    #: Learns from a replay buffer (`armexp.agents.addons.OFF_POLICY` lists these).
     off_policy: bool
     #: (agent config, environment) -> the class's keyword arguments.
     kwargs: Callable[[DictConfig, VecEnv], dict[str, Any]]
@@ -162,8 +163,6 @@ def _ppo(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
 
 
 def _sac(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
-    from armexp.agents.sac import sac_kwargs
-
     return sac_kwargs(agent)
 
 

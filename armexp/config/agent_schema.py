@@ -4,7 +4,7 @@ section per algorithm for the options only it has (``agent.td3``, ``agent.tqc``,
 
 `armexp.agents.factory` turns an ``agent`` config into the model of ``agent.algo``; which of the
 shared options each algorithm reads, maps or leaves out is said there (`armexp.agents.factory`'s
-``ALGORITHMS``).
+``ALGORITHM``).
 """
 
 from __future__ import annotations
