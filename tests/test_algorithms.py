@@ -26,7 +26,7 @@ from armexp.config.agent_schema import agent_label
 from armexp.envs.factory import settings_from_config
 from armexp.report.agent import AgentInfo
 from armexp.report.tables import table_two
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import SMALL_TRAIN, interrupt_training_at, stage_runs
 
 #: A small agent on 100-step episodes: seconds to train a few hundred steps.
 SMALL = ["controller.gains=paper", "agent=sac_smoke", "agent.net_arch=[32,32]",
@@ -266,3 +266,30 @@ def test_a_train_run_tags_its_algorithm_and_is_named_after_it(
     left_out = run.data.tags["armexp.agent_left_out"].split(",")
     assert left_out == (["ent_coef"] if algo == "td3" else list(ALGORITHM["ppo"].leaves_out))
     assert f"train: agent.algo={algo} on agent=sac_smoke: " in capsys.readouterr().out
+
+
+def test_ppo_is_sized_by_its_rollout_not_by_a_replay_buffer() -> None:
+    from armexp.resources import estimate
+
+    (sac, _) = estimate(compose_config(["agent=sac_paper"]), "train")
+    (ppo, _) = estimate(compose_config(["agent=sac_paper", "agent.algo=ppo"]), "train")
+    assert (sac.key, ppo.key) == ("agent.buffer_size", "agent.ppo.n_steps")
+    assert ppo.bytes == sac.bytes // 1_000_000 * 2048
+
+
+@pytest.mark.parametrize("algo", ["td3", "ppo"])
+def test_an_interrupted_run_of_another_algorithm_resumes_to_its_budget(
+    algo: str, runs_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    where = f"tracking.runs_dir={runs_dir}"
+    command = ["train", *SMALL_TRAIN, "train.gains=config", "controller.gains=paper",
+               f"agent.algo={algo}", "agent.ppo.n_steps=128", where]  # fmt: skip
+    interrupt_training_at(monkeypatch, 300)
+    assert main(command) == 130
+    monkeypatch.undo()
+    (run,) = stage_runs(runs_dir, "train")
+    assert main([*command, f"train.resume={run.info.run_id}"]) == 0
+    (resumed,) = stage_runs(runs_dir, "train")
+    assert resumed.info.run_id == run.info.run_id and resumed.info.status == "FINISHED"
+    assert resumed.data.tags["armexp.resumed_from_step"] == "300"
+    assert resumed.data.metrics["final/env_steps"] == 600
