@@ -16,10 +16,10 @@ from sb3_contrib import TQC, CrossQ
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.logger import Logger
 
-from armexp.agents.addons import OFF_POLICY
 from armexp.agents.algorithms import ResumeRefill
 from armexp.agents.factory import ALGORITHM, build_agent, load_agent, mark_resumed, usage
 from armexp.agents.vec import make_vec_env
+from armexp.aids import OFF_POLICY
 from armexp.cli import main
 from armexp.config import ALGORITHMS, ConfigError, compose_config, config_dir
 from armexp.config.agent_schema import agent_label

@@ -9,8 +9,9 @@ they apply, as ``callbacks:`` lists do in lightning-hydra-template::
 
 Each aid gets the model and the environment's settings before training (`TrainingAddOn.setup`,
 which may return SB3 callbacks) and may change the model after it (`TrainingAddOn.finish`,
-which returns ``final/*`` metrics). Aids that use the planner's or the obstacles' knowledge
-make a run *aided* (docs/design.md §7); the report says so for every table built from one.
+which returns ``final/*`` metrics). Each aid points at its declaration in `armexp.aids`, which
+says whether it uses the planner's or the obstacles' knowledge and so makes a run *aided*
+(docs/design.md §7); the report says so for every table built from one.
 """
 
 from __future__ import annotations
@@ -21,15 +22,12 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.config import ALGORITHMS, ConfigError, check_aid
+from armexp.aids import ALL_ALGORITHMS, AidDeclaration
+from armexp.config import ConfigError, check_aid
 from armexp.envs.reach import ReachSettings
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
-
-#: Every algorithm of ``agent.algo``, and those that learn from a replay buffer.
-ALL_ALGORITHMS = frozenset(ALGORITHMS)
-OFF_POLICY = frozenset({"sac", "td3", "tqc", "crossq"})
 
 
 @dataclass
@@ -62,13 +60,20 @@ class TrainingContext:
 class TrainingAddOn:
     """One add-on to an agent's training (see the module doc)."""
 
-    #: Uses privileged knowledge (the planner, the obstacles): the run is aided.
-    privileged: ClassVar[bool] = False
+    #: Its declaration (`armexp.aids`): its name, whether it uses privileged knowledge (the
+    #: planner, the obstacles: the run is aided), and how the report names it. None: an add-on
+    #: the report names by its ``_target_``.
+    declaration: ClassVar[AidDeclaration | None] = None
     #: Aids that must come before this one in ``agent.aids`` (by class).
     needs: ClassVar[tuple[type[TrainingAddOn], ...]] = ()
-    #: The ``agent.algo`` values it applies to; another is refused before a run starts
-    #: (`armexp.config.check_aid`).
+    #: The ``agent.algo`` values it applies to (a declared aid's, from its declaration);
+    #: another is refused before a run starts (`armexp.config.check_aid`).
     algorithms: ClassVar[frozenset[str]] = ALL_ALGORITHMS
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.declaration is not None and "algorithms" not in cls.__dict__:
+            cls.algorithms = cls.declaration.algorithms
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         """Before training: change the model or the context; the callbacks to run."""
@@ -103,7 +108,7 @@ def build_addons(
                 "add-on (armexp.agents.addons.TrainingAddOn)."
             )
         if algo is not None:
-            check_aid(key, type(aid), algo)
+            check_aid(key, type(aid).__name__, aid.algorithms, algo)
         for need in aid.needs:
             if not any(isinstance(a, need) for a in aids):
                 raise ConfigError(

@@ -18,7 +18,8 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.agents.addons import OFF_POLICY, TrainingAddOn, TrainingContext
+from armexp import aids
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 
 
 class ActorAverage(BaseCallback):
@@ -70,7 +71,7 @@ class WeightAveraging(TrainingAddOn):
     The off-policy algorithms only, whose policies have a separate ``actor`` (PPO's actor and
     value network share one policy module)."""
 
-    algorithms = OFF_POLICY
+    declaration = aids.AVERAGING
 
     def __init__(self, tail: float) -> None:
         if not 0.0 < float(tail) <= 1.0:

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 from armexp.agents.sac import ResumableSAC
@@ -125,8 +126,7 @@ class BehaviourCloning(TrainingAddOn):
     joins SAC's actor update (`armexp.agents.sac.ResumableSAC`), which the other algorithms'
     library updates have no place for."""
 
-    privileged = True
-    algorithms = frozenset({"sac"})
+    declaration = aids.CLONING
     needs = (PlannerDemonstrations,)
 
     def __init__(self, weight: float) -> None:
@@ -136,6 +136,6 @@ class BehaviourCloning(TrainingAddOn):
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         model = ctx.model
-        assert isinstance(model, ResumableSAC)  # `algorithms` says so
+        assert isinstance(model, ResumableSAC)  # its declaration says so
         ctx.shared["cloning"] = DemonstrationCloning(model, planned(ctx), self.weight, ctx.seed)
         return []

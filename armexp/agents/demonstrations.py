@@ -18,7 +18,8 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from armexp.agents.addons import OFF_POLICY, TrainingAddOn, TrainingContext
+from armexp import aids
+from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.envs.reach import ReachEnv
 from armexp.sim.model import Array
 
@@ -149,8 +150,7 @@ class PlannerDemonstrations(TrainingAddOn):
     resumed run's buffer starts empty and gets none. Privileged: the planner knows the
     obstacles. Off-policy algorithms only: PPO has no replay buffer."""
 
-    privileged = True
-    algorithms = OFF_POLICY
+    declaration = aids.DEMONSTRATIONS
 
     def __init__(self, episodes: int) -> None:
         if int(episodes) < 1:
@@ -160,6 +160,6 @@ class PlannerDemonstrations(TrainingAddOn):
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         ctx.demo_episodes = self.episodes
         if not ctx.resumed:
-            assert isinstance(ctx.model, OffPolicyAlgorithm)  # `algorithms` says so
+            assert isinstance(ctx.model, OffPolicyAlgorithm)  # its declaration says so
             fill_replay(ctx.model, planned(ctx))
         return []

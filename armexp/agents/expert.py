@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.cloning import BehaviourCloning, DemonstrationCloning
 from armexp.envs.geometry import segment_hits, tips
@@ -196,9 +197,8 @@ class DaggerExpert(TrainingAddOn):
     demonstrations. Needs the cloning aid before it, so SAC only. Privileged: the planner
     labels."""
 
-    privileged = True
+    declaration = aids.EXPERT
     needs = (BehaviourCloning,)
-    algorithms = BehaviourCloning.algorithms
 
     def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:
         if not float(margin) > 0 or int(lookahead) < 1:

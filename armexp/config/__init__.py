@@ -292,7 +292,7 @@ def _agent_checks(cfg: DictConfig) -> None:
                     spec, DictConfig) else spec,
                 "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
-        check_aid(f"agent.aids.{name}", _aid_class(target), algo)
+        _check_aid_target(f"agent.aids.{name}", target, algo)
 
 
 def _rollout_fits(agent: DictConfig) -> None:
@@ -307,25 +307,34 @@ def _rollout_fits(agent: DictConfig) -> None:
         )
 
 
-def _aid_class(target: str) -> type | None:
-    """The class an aid's ``_target_`` names, or None where it cannot be imported (building the
-    aid then says why, `armexp.agents.addons.build_addons`)."""
+def _check_aid_target(key: str, target: str, algo: str) -> None:
+    """`check_aid` for the add-on class ``target`` names: a declared aid's algorithms from its
+    declaration (`armexp.aids`, no agent code imported), another add-on's from its class; one
+    that cannot be imported is left to building it, which says why
+    (`armexp.agents.addons.build_addons`)."""
     from hydra.utils import get_class
 
+    from armexp import aids
+
+    name = target.rpartition(".")[2]
+    declaration = aids.declared(target)
+    if declaration is not None:
+        check_aid(key, name, declaration.algorithms, algo)
+        return
     try:
-        return get_class(target)
+        kind = get_class(target)
     except Exception:
-        return None
+        return
+    check_aid(key, name, getattr(kind, "algorithms", None), algo)
 
 
-def check_aid(key: str, kind: type | None, algo: str) -> None:
-    """An add-on (a `armexp.agents.addons.TrainingAddOn` class) at ``key`` applies to
-    ``agent.algo=algo``: its ``algorithms`` list it (a class without the list applies to all)."""
-    allowed = getattr(kind, "algorithms", None)
-    if kind is not None and allowed is not None and algo not in allowed:
+def check_aid(key: str, name: str, allowed: frozenset[str] | None, algo: str) -> None:
+    """The add-on ``name`` at ``key``, which applies to the algorithms ``allowed`` (None: all),
+    applies to ``agent.algo=algo``."""
+    if allowed is not None and algo not in allowed:
         fits = [a for a in ALGORITHMS if a in allowed]
         raise ConfigError(
-            f"{key} is not allowed with agent.algo={algo}: {kind.__name__} applies to "
+            f"{key} is not allowed with agent.algo={algo}: {name} applies to "
             f"agent.algo={', '.join(fits)} only; remove it (~{key}) or use "
             + (f"agent.algo={fits[0]}." if len(fits) == 1 else "one of those.")
         )
