@@ -55,9 +55,13 @@ def precheck(
         cfg = composer.compose(job)
         if runs_job:
             resources.check(cfg, stage, job)
-            if stage in ("train", "pipeline") and OmegaConf.select(cfg, "agent.device"):
+            if stage in ("train", "pipeline", "hpo") and OmegaConf.select(cfg, "agent.device"):
                 resources.device_here(str(cfg.agent.device))
             prefixes.update(_prefixes(cfg, prefixes))
+    if stage == "hpo" and cfg is not None:
+        from armexp.hpo.checks import check_hpo
+
+        check_hpo(cfg, list(overrides), search_path)
     if not runs_job or cfg is None:
         return list(overrides)
     _writable(cfg)

@@ -165,6 +165,7 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "train_freq": int(agent.train_freq),
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
+        "target_entropy": "auto" if agent.target_entropy is None else float(agent.target_entropy),
         "n_steps": int(agent.n_steps),
         "policy_kwargs": {"net_arch": arch, "optimizer_kwargs": _adam(agent)},
         "device": device_here(str(agent.device)),

@@ -27,6 +27,7 @@ from armexp.config.checks import (
 )
 from armexp.config.stage_schema import (
     EvalStageConfig,
+    HpoStageConfig,
     PipelineStageConfig,
     PlayStageConfig,
     ReportStageConfig,
@@ -226,6 +227,8 @@ class AgentConfig:
             "'auto', 'auto_<initial value>' or a number ≥ 0 (SB3's ent_coef)",
         ),
     )
+    #: SAC's entropy target (SB3's target_entropy); null: SB3's "auto", −(action dimensions).
+    target_entropy: float | None = None
     #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
     n_steps: int = checked(1, at_least(1))
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
@@ -350,6 +353,7 @@ class ArmexpConfig:
     report: ReportStageConfig = field(default_factory=ReportStageConfig)
     pipeline: PipelineStageConfig = field(default_factory=PipelineStageConfig)
     ui: UiStageConfig = field(default_factory=UiStageConfig)
+    hpo: HpoStageConfig = field(default_factory=HpoStageConfig)
 
 
 SCHEMAS: dict[str, type] = {
