@@ -196,6 +196,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     try:
         line = split_args([expand_home(a) for a in args])
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
+        if stage == "hpo" and not line.multirun:
+            from armexp.hpo.space import as_params
+
+            overrides = as_params(overrides)
         if not line.runs_no_job:
             overrides = precheck(
                 stage, overrides, line.multirun, _search_path(line), not line.shows_config

@@ -33,4 +33,4 @@ def check_hpo(cfg: DictConfig, overrides: Sequence[str], search_path: Sequence[s
         try:
             compose_config([*search_path, *overrides, *end], stage="train")
         except ConfigError as exc:
-            raise ConfigError(f"{exc} (a value hpo.params can reach)") from None
+            raise ConfigError(f"{str(exc).rstrip('.')} (a value the search can reach).") from None

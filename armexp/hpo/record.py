@@ -32,6 +32,8 @@ from armexp.tags import (
 #: The artifact folder of an HPO run, and its files.
 FOLDER = "hpo"
 TRIALS_FILE, SPACE_FILE, STUDY_FILE = "trials.csv", "space.json", "study.json"
+#: The trials with their values typed (the report rebuilds the study from it).
+TRIALS_JSON = "trials.json"
 #: The trial's MLflow run, as a trial user attribute.
 RUN_ATTR = "armexp.run"
 #: The trial's metric: what the study optimises.
@@ -102,27 +104,39 @@ def close_trial(
     tracking.retry(lambda: client.set_terminated(run_id, status.get(state, "FAILED")))
 
 
-def trials_frame(study: Any) -> Any:
-    """One row per trial: number, state, value, the trial's values (``params.<key>``), when it
-    ran, and its trial run."""
-    import pandas as pd
-
+def trial_records(study: Any) -> list[dict[str, Any]]:
+    """One record per trial: number, state, value (a pruned trial's: its last check), its
+    values (``params``), when it ran, and its trial run."""
     from armexp.hpo.study import INTERRUPTED, RETRY_OF
 
     rows = []
     for t in study.get_trials(deepcopy=False):
         start, end = t.datetime_start, t.datetime_complete
+        value = t.value
+        if value is None and t.intermediate_values:
+            value = t.intermediate_values[max(t.intermediate_values)]
         rows.append({
             "number": t.number,
             "state": t.state.name,
-            "value": t.value,
-            **{f"params.{k}": v for k, v in t.params.items()},
+            "value": value,
+            "params": dict(t.params),
             "started": start.isoformat() if start else None,
             "duration_s": (end - start).total_seconds() if start and end else None,
             "retry_of": t.user_attrs.get(RETRY_OF),
             "interrupted": bool(t.user_attrs.get(INTERRUPTED, False)),
             "run_id": t.user_attrs.get(RUN_ATTR),
         })  # fmt: skip
+    return rows
+
+
+def trials_frame(study: Any) -> Any:
+    """`trial_records` as a table, the values as ``params.<key>`` columns."""
+    import pandas as pd
+
+    rows = []
+    for r in trial_records(study):
+        params = r.pop("params")
+        rows.append({**r, **{f"params.{k}": v for k, v in params.items()}})
     return pd.DataFrame(rows)
 
 
@@ -139,10 +153,11 @@ def snapshot(client: Any, hpo_run: str, study: Any, space: Any, about: Mapping[s
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         frame.to_csv(folder / TRIALS_FILE, index=False)
+        (folder / TRIALS_JSON).write_text(json.dumps(trial_records(study), default=str))
         (folder / SPACE_FILE).write_text(json.dumps({"space": spaces, "written": space.written,
                                                      "fixed": space.fixed}, indent=1))  # fmt: skip
         (folder / STUDY_FILE).write_text(json.dumps(dict(about), indent=1, default=str))
-        for name in (TRIALS_FILE, SPACE_FILE, STUDY_FILE):
+        for name in (TRIALS_FILE, TRIALS_JSON, SPACE_FILE, STUDY_FILE):
             tracking.retry(lambda n=name: client.log_artifact(hpo_run, str(folder / n), FOLDER))  # type: ignore[misc]
     states = [t.state for t in study.get_trials(deepcopy=False)]
     now = int(time.time() * 1000)

@@ -133,16 +133,21 @@ def trial_config(cfg: DictConfig, overrides: list[str], seed: int) -> DictConfig
     if HydraConfig.initialized():
         task = [o for o in HydraConfig.get().overrides.task if not o.startswith("seed=")]
         return compose_config([*task, *overrides, f"seed={seed}", swept], stage="train")
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
     out = copy.deepcopy(cfg)  # called outside a Hydra app: plain keys only
     with open_dict(out):
-        for o in [*overrides, f"seed={seed}"]:
-            key, _, value = o.partition("=")
-            OmegaConf.update(out, key, OmegaConf.create({"v": value}).v)  # type: ignore[union-attr]
+        for o in OverridesParser.create().parse_overrides([*overrides, f"seed={seed}"]):
+            OmegaConf.update(out, o.key_or_group, o.value())
     return out
 
 
 def _keys(overrides: list[str]) -> list[str]:
     return [o.partition("=")[0] for o in overrides]
+
+
+def _tag_pruned(client: MlflowClient, train_run: str) -> None:
+    tracking.retry(lambda: client.set_tag(train_run, STOP_REASON_TAG, "pruned"))
 
 
 def _trial(
@@ -170,7 +175,7 @@ def _trial(
                 result = train.run(seed_cfg, addons=[prune])
             success[seed] = float(result.summary.get("final/held_out_success", float("nan")))
             if prune.pruned_at is not None:
-                tracking.retry(lambda r=result: client.set_tag(r.run_id, STOP_REASON_TAG, "pruned"))
+                _tag_pruned(client, result.run_id)
                 the_study.tell(trial, state=TrialState.PRUNED)
                 record.close_trial(client, run_id, "PRUNED", success, None)
                 print(f"hpo: trial {trial.number} pruned at step {prune.pruned_at}")

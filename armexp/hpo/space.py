@@ -101,6 +101,27 @@ def parse(overrides: Sequence[str], cfg: DictConfig | None = None, where: str = 
     return space
 
 
+def as_params(overrides: Sequence[str]) -> list[str]:
+    """`armexp hpo`'s command line: a sweep (``'agent.gamma=interval(0.9,0.999)'``, or
+    ``hpo.params.agent.gamma=…``) is an entry of ``hpo.params`` (a string, as in a preset), so the
+    stage takes the sweeper's syntax and Hydra composes one config."""
+    parser = OverridesParser.create()
+    out = []
+    for text in overrides:
+        try:
+            (override,) = parser.parse_overrides([text])
+        except HydraException:
+            out.append(text)  # reported by the checks that follow
+            continue
+        if not override.is_sweep_override() or override.is_hydra_override():
+            out.append(text)
+            continue
+        key = override.get_key_element().lstrip("+~").removeprefix("hpo.params.")
+        value = text.partition("=")[2].replace("\\", "\\\\").replace("'", "\\'")
+        out.append(f"++hpo.params.{key}='{value}'")
+    return out
+
+
 def from_mapping(params: Mapping[str, Any], cfg: DictConfig | None, where: str) -> Space:
     """The space of a ``{key: "interval(…)"}`` mapping (``hpo.params``); a key given on the
     command line (``hpo.params.agent.gamma=…``) arrives nested, and is read as ``agent.gamma``."""
@@ -129,12 +150,12 @@ def distribution(override: Override, value: Any, int_key: bool, where: str = "")
 
     text = f"{where}{override.input_line}"
     if isinstance(value, ChoiceSweep):
-        choices = list(override.sweep_iterator(transformer=Transformer.encode))
+        choices: list[Any] = list(override.sweep_iterator(transformer=Transformer.encode))
         if value.shuffle:
             raise ConfigError(f"{text} is not allowed: a search draws its own order; drop shuffle.")
         return d.CategoricalDistribution(choices)
     if isinstance(value, RangeSweep):
-        values = list(override.sweep_iterator(transformer=Transformer.identity))
+        values: list[Any] = list(override.sweep_iterator(transformer=Transformer.identity))
         if not values:
             raise ConfigError(
                 f"{text} is not allowed: the range is empty; give range(start, stop[, step]) "

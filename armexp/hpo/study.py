@@ -61,6 +61,8 @@ def require(what: str, module: str = "optuna") -> None:
     installed."""
     if not installed(module):
         needs = "Optuna" if module == "optuna" else f"the {module} package"
+        if " " in what:  # a command, not a key=value
+            raise ConfigError(f"{what} needs {needs}, which is not installed; {INSTALL}.")
         raise ConfigError(f"{what} is not allowed here: it needs {needs}, which is not "
                           f"installed; {INSTALL}.")  # fmt: skip
 
@@ -145,7 +147,8 @@ def open_study(
         kwargs = {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else {}
         storage = optuna.storages.RDBStorage(url, engine_kwargs=kwargs)
         return optuna.create_study(
-            storage=storage, study_name=name, direction=direction, sampler=sampler,
+            storage=storage, study_name=name, direction=direction,  # type: ignore[arg-type]
+            sampler=sampler,
             pruner=pruner, load_if_exists=True,
         )  # fmt: skip
     except ValueError as exc:  # e.g. the stored study's direction differs

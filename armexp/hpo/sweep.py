@@ -82,7 +82,10 @@ def prepare(stage: str, overrides: Sequence[str], search_path: Sequence[str] = (
     seeds = search.check_seeds(cfg.hpo.seeds)
     search.check_checks(cfg, "hydra/sweeper=optuna")
     for end in space.ends(found):
-        compose_config([*search_path, *fixed_overrides(overrides), *end], stage="train")
+        try:
+            compose_config([*search_path, *fixed_overrides(overrides), *end], stage="train")
+        except ConfigError as exc:
+            raise ConfigError(f"{str(exc).rstrip('.')} (a value the search can reach).") from None
     direction = str(settings.direction)
     url = study.storage_url(cfg, settings.get("storage"))
     name = study.study_name(cfg, found, seeds, direction, settings.get("study_name"))
