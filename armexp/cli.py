@@ -307,9 +307,9 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     return 0
 
 
-def _hpo_run(plan: Any) -> tuple[str | None, dict[str, str] | None]:
-    """The HPO run an Optuna sweep reopens (None: a new one) and its tags."""
-    return (None, None) if plan is None else (plan.hpo_run, plan.tags)
+def _hpo_run(plan: Any) -> tuple[str | None, dict[str, str] | None, str | None]:
+    """The HPO run an Optuna sweep reopens (None: a new one), its tags and its name."""
+    return (None, None, None) if plan is None else (plan.hpo_run, plan.tags, plan.name)
 
 
 def _close_sweep(stage: str, sweep: Any, status: str) -> None:

@@ -71,10 +71,11 @@ def open_sweep(
     search_path: Sequence[str] = (),
     reopen: str | None = None,
     tags: dict[str, str] | None = None,
+    run_name: str | None = None,
 ) -> tuple[Any, str, Any]:
     """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
     reaches every job as ``tracking.sweep_run``. ``reopen``: a stopped sweep run to continue
-    instead (an Optuna sweep resuming its study); ``tags``: its own beside the sweep's. (MLflow
+    instead (an Optuna sweep resuming its study); ``tags`` and ``run_name``: its own. (MLflow
     is imported here, not before: the checks before a sweep do not need it.)"""
     from mlflow.tracking import MlflowClient
 
@@ -100,7 +101,7 @@ def open_sweep(
             tracking.retry(lambda: client.delete_tag(reopen, tracking.ERROR_TAG))
         print(f"armexp {stage}: sweep run {sweep_id} continues with the jobs of this multirun")
     else:
-        name = f"{own[tracking.STAGE_TAG]}-{stage}"
+        name = run_name or f"sweep-{stage}"
         run = tracking.retry(lambda: client.create_run(experiment_id, run_name=name, tags=own))
         sweep_id = run.info.run_id
         client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])

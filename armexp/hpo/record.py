@@ -104,6 +104,16 @@ def close_trial(
     tracking.retry(lambda: client.set_terminated(run_id, status.get(state, "FAILED")))
 
 
+def mark_interrupted(client: Any, study: Any, numbers: Sequence[int]) -> None:
+    """Tag the trial runs of trials a stopped process left behind (`armexp.hpo.study.recover`)."""
+    from armexp import tracking
+
+    for t in study.get_trials(deepcopy=False):
+        run_id = t.user_attrs.get(RUN_ATTR)
+        if t.number in numbers and run_id:
+            tracking.retry(lambda r=run_id: client.set_tag(r, TRIAL_STATE_TAG, "INTERRUPTED"))  # type: ignore[misc]
+
+
 def trial_records(study: Any) -> list[dict[str, Any]]:
     """One record per trial: number, state, value (a pruned trial's: its last check), its
     values (``params``), when it ran, and its trial run."""

@@ -73,6 +73,7 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     client = MlflowClient(tracking.store_uri(cfg))
     previous = resumable(client, the_study.user_attrs.get(study.HPO_RUN_ATTR), name)
     again = study.recover(the_study)
+    record.mark_interrupted(client, the_study, again)
     tags = record.hpo_tags(name, url, str(h.pruner.name))
     with tracking.stage_run(
         cfg, "hpo", run_name=h.run_name or name, extra_tags=tags, resume_run_id=previous

@@ -124,6 +124,7 @@ def run_sweep(sweeper: Any, arguments: list[str]) -> Any:
     client = MlflowClient(tracking.store_uri(cfg))
     the_study.set_user_attr(study.HPO_RUN_ATTR, hpo_run)
     again = study.recover(the_study)
+    record.mark_interrupted(client, the_study, again)
     about = {"study": the_study.study_name, "storage": tracking.store.hide_password(
         str(sweeper.storage)), "direction": str(sweeper.direction), "n_trials":
         int(sweeper.n_trials), "seeds": seeds, "sampler": str(chosen_sampler.get("_target_")),
