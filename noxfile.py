@@ -49,7 +49,9 @@ def scale(session: nox.Session) -> None:
     a worker SIGKILLed mid-sweep (root: each in a private network namespace; minutes), then the
     Ray-vs-joblib benchmark. Prints per sweep: points launched, how they ended, reuse, wall time."""
     session.install("-c", "constraints.txt", "-e", ".[dev,cluster]")
-    session.run("pytest", "-m", "slow", "-s", "-q", "-p", "no:warnings", "tests/test_cluster.py",
+    # One process (-n 0): the cluster tests print what each sweep did, which workers would hide.
+    session.run("pytest", "-m", "slow", "-n", "0", "-s", "-q", "-p", "no:warnings",
+                "tests/test_cluster.py",
                 *session.posargs)  # fmt: skip
     session.run("python", "benchmarks/ray_vs_joblib.py")
 

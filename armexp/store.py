@@ -22,7 +22,7 @@ from urllib.parse import unquote, urlsplit, urlunsplit
 
 from mlflow.tracking import MlflowClient
 
-from armexp import anchor, disk, remote
+from armexp import anchor, disk, new_store, remote
 from armexp.config import ConfigError
 from armexp.remote import hide_password
 
@@ -141,6 +141,8 @@ def _open_sqlite(uri: str, reading: bool) -> None:
     with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
+            if not db.exists():
+                new_store.make(db)
             _open_waiting(db, uri, lambda: _settle(db))
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)

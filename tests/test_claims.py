@@ -217,3 +217,16 @@ def test_no_baseline_at_all_is_an_empty_table_that_says_so() -> None:
     table = claim_check(episodes)
     assert table.numbers.empty
     assert any("No baseline" in n for n in table.notes)
+
+
+def test_the_paper_gains_config_holds_the_papers_printed_gains() -> None:
+    # Hydra composes controller.gains=paper from the config tree; armexp.paper is the one place
+    # the report, the tuner and the simulator take the printed gains from.
+    from omegaconf import OmegaConf
+
+    from armexp import paper
+    from armexp.config import config_dir
+    from armexp.sim.controllers import PAPER_GAINS
+
+    stored = OmegaConf.to_container(OmegaConf.load(config_dir() / "controller/gains/paper.yaml"))
+    assert stored == paper.GAINS and PAPER_GAINS is paper.GAINS

@@ -118,7 +118,7 @@ def test_a_full_disk_cuts_no_model_short(tmp_path: Path) -> None:
     assert not (artifacts / "model").exists() or not any((artifacts / "model").iterdir())
 
 
-@pytest.mark.parametrize("stage", ["train", "tune"])
+@pytest.mark.parametrize("stage", [pytest.param("train", marks=pytest.mark.slow), "tune"])
 def test_a_store_whose_disk_fills_still_marks_the_run_failed(tmp_path: Path, stage: str) -> None:
     """So little room that the store's own writes (metrics) fail during the run: the room kept
     beside the store lets the error and the FAILED status be written."""
@@ -194,6 +194,7 @@ def test_the_room_kept_beside_the_store_takes_the_last_writes(tmp_path: Path) ->
     assert not (folder / "runs" / "mlflow.db.reserve").exists()
 
 
+@pytest.mark.slow
 def test_a_disk_with_no_room_to_start_is_one_sentence(tmp_path: Path) -> None:
     """Too little room for Hydra's job folder: said before anything is written."""
     command = f"{ARMEXP} simulate scenario=hold seed=1 tracking.runs_dir=$RUNS"

@@ -116,7 +116,11 @@ def test_a_server_that_dies_during_a_run_stops_it_within_tracking_timeout_s(
     assert os.environ.get("MLFLOW_HTTP_REQUEST_MAX_RETRIES") is None  # put back after the command
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize(
+    "sig",
+    [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)],
+    ids=["SIGTERM", "SIGINT"],
+)
 def test_a_signal_while_the_server_is_gone_stops_at_once_and_says_the_run_is_left_running(
     server: Server, tmp_path: Path, capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch, sig: signal.Signals,

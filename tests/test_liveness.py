@@ -96,6 +96,7 @@ def test_a_run_whose_process_died_is_closed_by_the_next_command(
     assert live == []
 
 
+@pytest.mark.slow
 def test_a_live_sweep_and_its_pipeline_parents_are_not_taken_for_dead(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

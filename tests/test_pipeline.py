@@ -83,6 +83,7 @@ def test_pipeline_makes_one_parent_and_a_finished_child_per_stage(pipeline_store
     assert index.exists() and ev.info.run_id in index.read_text()
 
 
+@pytest.mark.slow
 def test_pipeline_reuse_skips_stages_whose_inputs_match(pipeline_store: Path) -> None:
     before = {s: len(_runs(pipeline_store, s)) for s in ("tune", "train", "eval")}
     assert (
@@ -158,6 +159,9 @@ def test_failing_stage_fails_the_parent_and_names_itself(
     assert all(r.info.status == "FINISHED" for r in _runs(runs, "tune"))
 
 
+#: In the slow set: the default arm's pipeline is this module's fixture, and the three-link
+#: arm's runs every stage in test_computed_torque_through_every_stage_on_every_shipped_robot.
+@pytest.mark.slow
 @pytest.mark.parametrize("robot", group_options("robot"))
 def test_smoke_pipeline_runs_on_every_shipped_robot(tmp_path: Path, robot: str) -> None:
     """Choosing a robot is enough: both controllers get that arm's gains, search box and torque

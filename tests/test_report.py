@@ -277,6 +277,24 @@ def _row(markdown: str, start: str) -> list[str]:
     return [cell.strip() for cell in line.strip("|").split(" | ")]
 
 
+@pytest.mark.slow
+def test_an_aided_run_is_reported_without_agent_code(
+    hand_reports: dict[str, Path], tmp_path: Path
+) -> None:
+    # The aids' declarations are plain data (armexp.aids): naming them imports no add-on.
+    runs = hand_reports["sac_quick"].parent / "runs"
+    blocked = ["armexp.sim", "armexp.envs", "armexp.agents", "armexp.tune", "torch"]
+    code = (
+        "from armexp.cli import main\n"
+        f"sys.exit(main(['report', 'tracking.runs_dir={runs}', 'report.out_dir={tmp_path}/r']))\n"
+    )
+    res = run_without(blocked, code, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    table = _text(tmp_path / "r", "table2_agent", "md")
+    assert table == _text(hand_reports["sac_quick"], "table2_agent", "md")
+    assert "| Aided | yes: demonstrations, behaviour cloning, DAgger expert" in table
+
+
 def test_table_two_names_the_preset_its_aids_and_the_budget_spent(
     hand_reports: dict[str, Path],
 ) -> None:
@@ -448,6 +466,57 @@ def test_only_aids_with_privileged_knowledge_make_an_agent_aided() -> None:
     addons = aids_of({"aids": {"x": {"_target_": "armexp.agents.expert.ExpertLabels"}}})
     assert [(a.name, a.privileged) for a in addons] == [("ExpertLabels", True)]
     assert AgentInfo("t", "sac_paper", []).label == "sac_paper (plain SAC, no learning aids)"
+
+
+def test_a_train_run_without_its_config_names_its_aids_from_its_params() -> None:
+    from types import SimpleNamespace
+
+    from omegaconf import OmegaConf
+
+    from armexp import tracking
+    from armexp.config import compose_config
+    from armexp.report.agent import agent_info, aids_of
+
+    cfg = compose_config(["agent=sac_quick"])
+    run = SimpleNamespace(
+        data=SimpleNamespace(params=tracking.flatten(cfg), tags={}, metrics={}),
+        info=SimpleNamespace(status="FINISHED"),
+    )
+    from_params = agent_info("t", cast(Any, run), None)
+    agent = OmegaConf.to_container(cfg.agent)
+    assert isinstance(agent, dict)
+    assert from_params.aids == aids_of(cast(dict[str, Any], agent)) and from_params.aided
+    assert [a.name for a in from_params.aids][:2] == ["demonstrations", "behaviour cloning"]
+    # An aid stored by its preset name without a _target_ is read by that name.
+    (named,) = aids_of({"aids": {"averaging": {"tail": 0.5}}})
+    assert (named.name, named.privileged) == ("weight averaging", False)
+    assert named.detail == "final actor averaged over the last 50 % of the budget"
+
+
+def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() -> None:
+    import importlib
+
+    from armexp import aids
+    from armexp.agents.addons import TrainingAddOn
+    from armexp.config import compose_config
+
+    for preset in ("sac_quick", "sac_demo"):
+        specs = compose_config([f"agent={preset}"]).agent.aids
+        assert {name: spec._target_ for name, spec in specs.items()} == {
+            a.name: a.target for a in aids.AIDS
+        }, preset
+    for declaration in aids.AIDS:
+        module, _, name = declaration.target.rpartition(".")
+        addon = getattr(importlib.import_module(module), name)
+        assert issubclass(addon, TrainingAddOn) and addon.declaration is declaration
+        assert aids.declared(declaration.name) is aids.declared(declaration.target) is declaration
+    assert {a.name: a.privileged for a in aids.AIDS} == {
+        "demonstrations": True, "cloning": True, "expert": True, "averaging": False,
+    }  # fmt: skip
+    assert aids.declared("armexp.agents.expert.ExpertLabels") is None
+    assert aids.privileged_modules() == (
+        "armexp.agents.demonstrations", "armexp.agents.cloning", "armexp.agents.expert",
+    )  # fmt: skip
 
 
 def test_out_dir_that_is_not_a_report_is_refused_and_left_as_it_was(

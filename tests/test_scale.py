@@ -104,6 +104,7 @@ def mlflow_server(tmp_path: Path) -> Iterator[str]:
         proc.wait(timeout=30)
 
 
+@pytest.mark.slow
 def test_stages_log_through_a_real_mlflow_server(mlflow_server: str, tmp_path: Path) -> None:
     where = ["tracking=server", f"tracking.uri={mlflow_server}", f"tracking.runs_dir={tmp_path}"]
     assert main(["simulate", "scenario.duration=0.3", *where]) == 0
@@ -230,6 +231,7 @@ def test_signal_during_train_leaves_killed_run_with_checkpoint_and_resume_finish
     assert done.data.metrics["final/env_steps"] == 3000
 
 
+@pytest.mark.slow
 def test_a_password_in_the_tracking_uri_is_nowhere_in_the_runs(
     mlflow_server: str,
     tmp_path: Path,

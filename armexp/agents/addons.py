@@ -9,8 +9,9 @@ they apply, as ``callbacks:`` lists do in lightning-hydra-template::
 
 Each aid gets the model and the environment's settings before training (`TrainingAddOn.setup`,
 which may return SB3 callbacks) and may change the model after it (`TrainingAddOn.finish`,
-which returns ``final/*`` metrics). Aids that use the planner's or the obstacles' knowledge
-make a run *aided* (docs/design.md §7); the report says so for every table built from one.
+which returns ``final/*`` metrics). Each aid points at its declaration in `armexp.aids`, which
+says whether it uses the planner's or the obstacles' knowledge and so makes a run *aided*
+(docs/design.md §7); the report says so for every table built from one.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp.aids import AidDeclaration
 from armexp.config import ConfigError
 from armexp.envs.reach import ReachSettings
 
@@ -56,8 +58,10 @@ class TrainingContext:
 class TrainingAddOn:
     """One add-on to SAC's training (see the module doc)."""
 
-    #: Uses privileged knowledge (the planner, the obstacles): the run is aided.
-    privileged: ClassVar[bool] = False
+    #: Its declaration (`armexp.aids`): its name, whether it uses privileged knowledge (the
+    #: planner, the obstacles: the run is aided), and how the report names it. None: an add-on
+    #: the report names by its ``_target_``.
+    declaration: ClassVar[AidDeclaration | None] = None
     #: Aids that must come before this one in ``agent.aids`` (by class).
     needs: ClassVar[tuple[type[TrainingAddOn], ...]] = ()
 

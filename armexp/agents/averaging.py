@@ -18,6 +18,7 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 
 
@@ -67,6 +68,8 @@ class WeightAveraging(TrainingAddOn):
     """The final actor is the mean of its weights over the last ``tail`` share of the budget
     (`ActorAverage`; ``final/averaged_actors`` says how many). The checkpoint keeps the last
     weights; a resumed run averages from where it resumes. Uses no privileged knowledge."""
+
+    declaration = aids.AVERAGING
 
     def __init__(self, tail: float) -> None:
         if not 0.0 < float(tail) <= 1.0:

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 
@@ -127,7 +128,7 @@ class BehaviourCloning(TrainingAddOn):
     """The cloning term above, with weight ``weight``, on the planner's demonstrations (listed
     before it in ``agent.aids``). Privileged: it imitates the planner."""
 
-    privileged = True
+    declaration = aids.CLONING
     needs = (PlannerDemonstrations,)
 
     def __init__(self, weight: float) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.envs.reach import ReachEnv
 from armexp.sim.model import Array
@@ -149,7 +150,7 @@ class PlannerDemonstrations(TrainingAddOn):
     resumed run's buffer starts empty and gets none. Privileged: the planner knows the
     obstacles."""
 
-    privileged = True
+    declaration = aids.DEMONSTRATIONS
 
     def __init__(self, episodes: int) -> None:
         if int(episodes) < 1:

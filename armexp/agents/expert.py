@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.cloning import BehaviourCloning, DemonstrationCloning
 from armexp.envs.geometry import segment_hits, tips
@@ -195,7 +196,7 @@ class DaggerExpert(TrainingAddOn):
     ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the
     demonstrations. Needs the cloning aid before it. Privileged: the planner labels."""
 
-    privileged = True
+    declaration = aids.EXPERT
     needs = (BehaviourCloning,)
 
     def __init__(self, margin: float = 0.10, lookahead: int = 5) -> None:

@@ -21,16 +21,10 @@ from typing import Any
 import yaml
 from mlflow.entities import Run
 
+from armexp import aids
 from armexp.report.runs import metric_value
 from armexp.tags import AGENT_PRESET_TAG, STOP_REASON_TAG
 
-#: Modules whose add-ons use the planner's or the obstacles' privileged knowledge, for aids
-#: composed from config lists (``_target_``) rather than agent keys.
-PRIVILEGED_MODULES = (
-    "armexp.agents.demonstrations",
-    "armexp.agents.cloning",
-    "armexp.agents.expert",
-)
 #: Train-run metrics of the budget spent, newest name first (final/* are logged at the end;
 #: the others while training, so a KILLED run still shows how far it got).
 SPENT_METRICS = {
@@ -99,60 +93,53 @@ def _g(value: Any) -> str:
     return f"{_num(value):g}"
 
 
-#: Aids composed from ``agent.aids`` (``_target_``): a caption's name, Table II's detail from the
-#: aid's arguments, and whether it uses privileged knowledge.
-KNOWN_AIDS: dict[str, tuple[str, Callable[[Mapping[str, Any]], str], bool]] = {
-    "armexp.agents.demonstrations.PlannerDemonstrations": (
-        "demonstrations",
-        lambda a: f"{int(_num(a.get('episodes')))} planner demonstrations in the replay buffer",
-        True,
-    ),
-    "armexp.agents.cloning.BehaviourCloning": (
-        "behaviour cloning",
-        lambda a: f"behaviour cloning of the demonstrations (weight {_g(a.get('weight'))})",
-        True,
-    ),
-    "armexp.agents.expert.DaggerExpert": (
-        "DAgger expert",
-        lambda a: "DAgger: the planner's action cloned on every visited state",
-        True,
-    ),
-    "armexp.agents.averaging.WeightAveraging": (
-        "weight averaging",
-        lambda a: (
-            f"final actor averaged over the last {_num(a.get('tail')) * 100:g} % of the budget"
-        ),
-        False,
-    ),
-}
-#: Runs stored before aids were composed from ``agent.aids`` set them with agent keys: the key,
-#: the aid's name, its detail from the key's value, and whether it is privileged.
-LEGACY_AIDS: tuple[tuple[str, str, Callable[[Any], str], bool], ...] = (
-    ("demonstrations", "demonstrations",
-     lambda v: f"{int(_num(v))} planner demonstrations in the replay buffer", True),
-    ("bc_weight", "behaviour cloning",
-     lambda v: f"behaviour cloning of the demonstrations (weight {_g(v)})", True),
-    ("bc_expert", "DAgger expert",
-     lambda v: "DAgger: the planner's action cloned on every visited state", True),
-    ("shaping", "planner reward shaping",
-     lambda v: f"reward shaped by the planner's time to go ({_g(v)} per s)", True),
-    ("relabel", "hindsight relabelling",
-     lambda v: f"hindsight relabelling ({_num(v) * 100:g} % of each batch)", False),
-    ("clearance", "collision clearance",
-     lambda v: f"collisions counted {_g(v)} m from the obstacles in training", False),
-    ("average_tail", "weight averaging",
-     lambda v: f"final actor averaged over the last {_num(v) * 100:g} % of the budget", False),
+@dataclass(frozen=True)
+class _Legacy:
+    """An agent key that set an aid before aids were composed from ``agent.aids``: the add-on
+    that does the same now (its name in `armexp.aids`) and the argument the key's
+    value was; or, for an aid since removed, its name, its detail from the value and whether it
+    used privileged knowledge."""
+
+    key: str
+    aid: str = ""
+    arg: str = ""
+    name: str = ""
+    detail: Callable[[Any], str] = str
+    privileged: bool = False
+
+
+#: Runs stored before aids were composed from ``agent.aids`` set them with these agent keys.
+LEGACY_AIDS = (
+    _Legacy("demonstrations", "demonstrations", "episodes"),
+    _Legacy("bc_weight", "cloning", "weight"),
+    _Legacy("bc_expert", "expert"),
+    _Legacy("shaping", name="planner reward shaping", privileged=True,
+            detail=lambda v: f"reward shaped by the planner's time to go ({_g(v)} per s)"),
+    _Legacy("relabel", name="hindsight relabelling",
+            detail=lambda v: f"hindsight relabelling ({_num(v) * 100:g} % of each batch)"),
+    _Legacy("clearance", name="collision clearance",
+            detail=lambda v: f"collisions counted {_g(v)} m from the obstacles in training"),
+    _Legacy("average_tail", "averaging", "tail"),
 )  # fmt: skip
+
+
+def _declared_aid(target: str, args: Mapping[str, Any]) -> Aid | None:
+    """The aid of a declared add-on (`armexp.aids`), as its declaration names it."""
+    found = aids.declared(target)
+    if found is None:
+        return None
+    return Aid(found.title, found.describe(args), found.privileged)
 
 
 def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) -> list[Aid]:
     """The learning aids an agent config (and the train stage's config) turn on."""
     train = train or {}
     out: list[Aid] = []
-    for key, name, detail, privileged in LEGACY_AIDS:
-        value = agent.get(key)
+    for old in LEGACY_AIDS:
+        value = agent.get(old.key)
         if value is True or (value is not False and _num(value) > 0):
-            out.append(Aid(name, detail(value), privileged))
+            known = _declared_aid(old.aid, {old.arg: value}) if old.aid else None
+            out.append(known or Aid(old.name, old.detail(value), old.privileged))
     if train.get("keep_best") is True and _num(train.get("eval_every")) > 0:
         out.append(
             Aid(
@@ -161,17 +148,20 @@ def aids_of(agent: Mapping[str, Any], train: Mapping[str, Any] | None = None) ->
                 False,
             )
         )
-    aids = agent.get("aids")
-    for spec in aids.values() if isinstance(aids, Mapping) else ():
-        target = spec.get("_target_") if isinstance(spec, Mapping) else None
-        if isinstance(target, str) and target in KNOWN_AIDS:
-            name, detail, privileged = KNOWN_AIDS[target]
-            out.append(Aid(name, detail(spec), privileged))
-    for target in _targets(agent):
-        if target in KNOWN_AIDS:
+    specs = agent.get("aids")
+    for key, spec in specs.items() if isinstance(specs, Mapping) else ():
+        if not isinstance(spec, Mapping):
             continue
+        # A spec names its add-on by _target_; one stored without it, by its preset name.
+        target = spec.get("_target_")
+        known = _declared_aid(target if isinstance(target, str) else str(key), spec)
+        if known is not None:
+            out.append(known)
+    for target in _targets(agent):
+        if aids.declared(target) is not None:
+            continue  # described above
         module, _, name = target.rpartition(".")
-        privileged = any(module.startswith(m) for m in PRIVILEGED_MODULES)
+        privileged = any(module.startswith(m) for m in aids.privileged_modules())
         out.append(Aid(name or target, f"add-on {target}", privileged))
     return out
 
@@ -192,13 +182,22 @@ def _targets(node: Any) -> list[str]:
 
 
 def _from_params(params: Mapping[str, str], prefix: str) -> dict[str, Any]:
+    """The params under ``prefix`` as a config; ``aids.<name>.<arg>`` (the aids flattened into
+    params) back under ``aids``, one config per aid."""
     out: dict[str, Any] = {}
     for key, text in params.items():
         if key.startswith(prefix):
             try:
-                out[key[len(prefix) :]] = yaml.safe_load(text)
+                value = yaml.safe_load(text)
             except yaml.YAMLError:
-                out[key[len(prefix) :]] = text
+                value = text
+            name = key[len(prefix) :]
+            where, _, arg = name.partition(".")
+            if where == "aids" and arg.count(".") == 1:
+                aid, _, arg = arg.partition(".")
+                out.setdefault("aids", {}).setdefault(aid, {})[arg] = value
+            else:
+                out[name] = value
     return out
 
 

@@ -24,19 +24,18 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
+from armexp import paper
 from armexp.report import labels, stats
 from armexp.report.comparison import paired
-from armexp.report.performance import (
-    N_BOOT,
+from armexp.report.episodes import (
     agent_names,
     agents,
     has_values,
     of_agent,
-    pct,
     run_counts,
     with_derived,
 )
-from armexp.report.tables import Context, Table
+from armexp.report.formatting import N_BOOT, Context, Table, pct
 
 
 class Claim(NamedTuple):
@@ -49,9 +48,10 @@ class Claim(NamedTuple):
 
 
 CLAIMS = (
-    Claim("faster convergence", "time_constant", "time constant 1/α, small offset (s)", 0.10,
-          True, False),
-    Claim("better accuracy", "tip_rms_cm", "tip tracking error (cm)", 0.18, False, True),
+    Claim("faster convergence", "time_constant", "time constant 1/α, small offset (s)",
+          paper.FASTER_CONVERGENCE, True, False),
+    Claim("better accuracy", "tip_rms_cm", "tip tracking error (cm)", paper.BETTER_ACCURACY,
+          False, True),
 )  # fmt: skip
 #: Fewer distinct seeds than this: the claim is measured but no verdict is given.
 MIN_SEEDS = 2

@@ -17,23 +17,26 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from armexp import paper
 from armexp.report import labels, stats
-from armexp.report.performance import (
-    N_BOOT,
-    PAPER_TASKS,
+from armexp.report.episodes import (
     agent_columns,
     agent_names,
     agents,
+    of_agent,
+    run_counts,
+    with_derived,
+)
+from armexp.report.formatting import (
+    N_BOOT,
+    Context,
+    Table,
     context_notes,
     iqm_cell,
     number,
-    of_agent,
     pct,
-    run_counts,
     statistics_note,
-    with_derived,
 )
-from armexp.report.tables import Context, Table
 
 #: The comparison's measured columns: (header, key, paper tasks only, digits).
 COLUMNS = (
@@ -119,7 +122,7 @@ def comparison(episodes: pd.DataFrame, ctx: Context | None = None) -> Table:
             shown["Held-out success"], success = held_out_success(sub, label)
             row.update({f"heldout_success_pct_{k}": v for k, v in success.items()})
             for header, key, tasks_only, digits in COLUMNS:
-                part = rows[rows.task.isin(PAPER_TASKS)] if tasks_only else rows
+                part = rows[rows.task.isin(paper.TASKS)] if tasks_only else rows
                 shown[header], value = matrix_cell(part, key, digits)
                 row.update({f"{key}_{k}" if k != "iqm" else key: v for k, v in value.items()})
             shown_rows.append(shown)
@@ -158,7 +161,7 @@ def paired(
     """(first, second) score matrices (runs × episodes) of two labels over the episodes both
     ran with a finite, positive ``key`` in every run (and, with ``reached``, both reached)."""
     if tasks_only:
-        rows = rows[rows.task.isin(PAPER_TASKS)]
+        rows = rows[rows.task.isin(paper.TASKS)]
     rows = rows[rows.controller.isin([first, second])]
     if key not in rows.columns or rows.empty:
         return np.zeros((0, 0)), np.zeros((0, 0))

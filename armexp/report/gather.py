@@ -19,11 +19,13 @@ from typing import Any
 import pandas as pd
 import yaml
 
+from armexp import paper
 from armexp.config import ConfigError
-from armexp.report import labels, tables, tuning
+from armexp.paper import TASKS
+from armexp.report import formatting, labels
 from armexp.report.agent import AgentInfo, agent_info, caption
 from armexp.report.labels import Label
-from armexp.report.runs import TASKS, TRAIN_RUN_TAG, Reader, Selection, metric_value
+from armexp.report.runs import TRAIN_RUN_TAG, Reader, Selection, metric_value
 from armexp.tags import ADAPTIVE_GAINS_TAG, AGENT_PRESET_TAG, COMMIT_TAG, STAGE_TAG
 
 #: What `armexp eval` animates: ``animations/<label>/<task>.<format>`` artifacts.
@@ -46,7 +48,7 @@ def agents_of(selection: Selection, configs: dict[str, Any]) -> dict[str, AgentI
 def _gains_label(ev: Any) -> str:
     """How an eval run with ``eval.adaptive_gains=config`` is named: "paper gains" when its
     logged ``controller.gains.*`` are the paper's."""
-    published = tuning.paper_gains()
+    published = paper.GAINS
     logged = {k: _param(ev.data.params.get(f"controller.gains.{k}")) for k in published}
     same = all(
         isinstance(v, int | float) and math.isclose(float(v), published[k])
@@ -147,13 +149,13 @@ def episodes_of(
         frame.insert(3, "agent_preset", info.preset)
         frame.insert(4, "aided", info.aided)
         frame.insert(5, "gains", info.gains)
-        paper = frame.task.isin(list(TASKS))
+        on_tasks = frame.task.isin(list(TASKS))
         stored = set(frame.controller.astype(str))
         for name, value in sorted(ev.data.metrics.items()):
             label, _, rest = name.partition(".")
             task, _, key = rest.partition(".")
             if label in stored and task in TASKS and key and "." not in key:
-                rows = paper & (frame.controller == label) & (frame.task == task)
+                rows = on_tasks & (frame.controller == label) & (frame.task == task)
                 if rows.any():
                     frame.loc[rows, key] = metric_value(value)
         frames.append(labels.annotate(frame, run_labels.get(run_id, {})))
@@ -180,7 +182,7 @@ def _per_joint(value: Any, unit: str, sign: str = "") -> str:
 
 def context_of(
     selection: Selection, agents: dict[str, AgentInfo], train_cfg: dict[str, Any] | None
-) -> tables.Context:
+) -> formatting.Context:
     """What Table III, the controller comparison and the claim check say beside their numbers."""
     infos = list({a.label: a for a in agents.values()}.values())
     counts = [sum(a.label == i.label for a in agents.values()) for i in infos]
@@ -191,7 +193,7 @@ def context_of(
     if limit is None and train_cfg and train_cfg.get("robot", {}).get("torque_limit"):
         limit = _per_joint(train_cfg["robot"]["torque_limit"], "N·m", "±")
     env = (train_cfg or {}).get("env", {})
-    return tables.Context(
+    return formatting.Context(
         agent=caption(infos, counts),
         initial_offset=_values(
             [p.get("eval.initial_offset") for p in params], lambda v: _per_joint(v, "rad")

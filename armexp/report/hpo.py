@@ -18,8 +18,8 @@ from typing import Any
 
 import pandas as pd
 
+from armexp.report.formatting import Table
 from armexp.report.runs import Reader
-from armexp.report.tables import Table
 
 #: Rows of the best-trials table.
 BEST_ROWS = 10

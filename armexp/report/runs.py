@@ -33,8 +33,6 @@ from armexp.tags import (
     TUNE_RUN_TAG,
 )
 
-TASKS = ("a", "b", "c", "d")
-
 
 def tune_run_ids(tags: dict[str, str]) -> list[str]:
     """Every tune run an eval run's tags name, new and old tags alike, in tag order."""

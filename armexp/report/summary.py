@@ -13,20 +13,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from armexp import paper
 from armexp.report import labels
 from armexp.report.claims import CLAIMS
 from armexp.report.comparison import held_out_success
-from armexp.report.performance import (
-    PAPER_TASKS,
+from armexp.report.episodes import (
     agent_names,
     agents,
     of_agent,
-    pct,
     proposed_labels,
     run_counts,
     with_derived,
 )
-from armexp.report.tables import Context, Table
+from armexp.report.formatting import Context, Table, pct
 
 
 def _claim_text(claims: pd.DataFrame, name: str, claim: str, baseline: str) -> tuple[str, str]:
@@ -68,7 +67,7 @@ def summary(
             ("", label) for label in proposed_labels(rows)[:1]
         ]  # fmt: skip
         for baseline, proposed in pairs:
-            tasks = rows[rows.task.isin(PAPER_TASKS) & (rows.controller == proposed)]
+            tasks = rows[rows.task.isin(paper.TASKS) & (rows.controller == proposed)]
             ours, ours_n = held_out_success(rows, proposed)
             base, base_n = held_out_success(rows, baseline) if baseline else ("–", {})
             conv_text, conv_verdict = _claim_text(claims.numbers, name, conv.name, baseline)

@@ -19,24 +19,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from armexp import paper
 from armexp.report import labels, stats
+from armexp.report.formatting import Table, number
 from armexp.report.labels import Label
 from armexp.report.runs import Reader, Selection
-from armexp.report.tables import Table, fmt
 from armexp.tags import GAINS_ON_BOUND_TAG
 
 ADAPTIVE = "subsystem_adaptive"
-
-
-def paper_gains() -> dict[str, float]:
-    """The paper's adaptive gains, from the config tree (``controller.gains=paper``)."""
-    from omegaconf import OmegaConf
-
-    from armexp.config import config_dir
-
-    gains = OmegaConf.to_container(OmegaConf.load(config_dir() / "controller/gains/paper.yaml"))
-    assert isinstance(gains, dict)
-    return {str(k): float(v) for k, v in gains.items()}
 
 
 def _used_by(run_labels: Mapping[str, Mapping[str, Label]]) -> dict[str, list[str]]:
@@ -84,23 +74,25 @@ def tunes_of(
 
 def cso_table(tunes: list[dict[str, Any]]) -> Table:
     """Each tune run's best gains beside the paper's (adaptive law only), and the objective."""
-    published = paper_gains()
+    published = paper.GAINS
     shown_rows, numbers = [], []
     for tune in tunes:
         adaptive = tune["controller"] == ADAPTIVE
         how = labels.tuning(tune["criterion"], tune["horizon"])
         for gain, v in tune["gains"].items():
-            paper = published.get(gain, math.nan) if adaptive else math.nan
+            printed = published.get(gain, math.nan) if adaptive else math.nan
             shown_rows.append({"Controller": tune["controller"], "Criterion": how, "Gain": gain,
                                "Tuned (CSO)": f"{v:.6g}",
-                               "Paper": f"{paper:g}" if math.isfinite(paper) else "–"})  # fmt: skip
+                               "Paper": f"{printed:g}" if math.isfinite(printed) else "–",
+                               })  # fmt: skip
             numbers.append({"run_id": tune["run_id"], "controller": tune["controller"],
                             "criterion": tune["criterion"], "gain": gain, "tuned": v,
-                            "paper": paper})  # fmt: skip
+                            "paper": printed})  # fmt: skip
         shown_rows.append({"Controller": tune["controller"], "Criterion": how,
                            "Gain": f"objective ({tune['criterion']})",
-                           "Tuned (CSO)": fmt(tune["best"]),
-                           "Paper": fmt(tune["paper_objective"]) if adaptive else "–"})  # fmt: skip
+                           "Tuned (CSO)": number(tune["best"]),
+                           "Paper": number(tune["paper_objective"]) if adaptive else "–",
+                           })  # fmt: skip
         numbers.append({"run_id": tune["run_id"], "controller": tune["controller"],
                         "criterion": tune["criterion"], "gain": "objective",
                         "tuned": tune["best"], "paper": tune["paper_objective"]})  # fmt: skip
@@ -191,9 +183,9 @@ def spread_table(tunes: list[dict[str, Any]]) -> Table:
                 f"{len(g['seeds'])} seeds ({', '.join(map(str, g['seeds']))}), so the spread "
                 "over seeds holds no tuning variation for it."
             )
-        best = fmt(g["best_iqm"])
+        best = number(g["best_iqm"])
         if g["runs"] > 1:
-            best += f" [{fmt(g['best_min'])}, {fmt(g['best_max'])}]"
+            best += f" [{number(g['best_min'])}, {number(g['best_max'])}]"
         shown_rows.append(
             {
                 "Controller": controller,

@@ -34,6 +34,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numba import njit
 
+from armexp.paper import GAINS
 from armexp.sim.model import Array
 
 ADAPTIVE = 0
@@ -46,8 +47,8 @@ PID_GAIN_NAMES = ("kp", "ki", "kd")
 #: The adaptive law's search coordinates: a0, a1 and the rates λ = c1·r1, γ = b1²·c1.
 ADAPTIVE_SEARCH_NAMES = ("a0", "a1", "lambda", "gamma")
 
-#: Gains published in the paper (§V), found there by CSO.
-PAPER_GAINS = {"a0": 668.0, "a1": 552.0, "b1": 1.8, "c1": 0.001, "r1": 0.69}
+#: Gains published in the paper (§V), found there by CSO (`armexp.paper` holds them).
+PAPER_GAINS = GAINS
 
 
 def adaptive_rates(gains: Array) -> tuple[float, float]:

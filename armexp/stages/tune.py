@@ -243,6 +243,50 @@ def _best_metrics(
     return metrics, bound_hits
 
 
+def _reference(cfg: DictConfig, objective: TuningObjective, n: int) -> dict[str, float]:
+    """The objective at the paper's adaptive gains (scored as the adaptive law, whatever the
+    tuned controller) and at the configured gains."""
+    paper = build_objective(cfg, kind=ADAPTIVE) if objective.kind != ADAPTIVE else objective
+    return {
+        "objective_paper_gains": float(paper(gain_vector(ADAPTIVE, PAPER_GAINS, n)[None])[0]),
+        "objective_config_gains": float(objective(controller_gains(cfg)[None])[0]),
+    }
+
+
+def _log_best(
+    cfg: DictConfig,
+    space: SearchSpace,
+    objective: TuningObjective,
+    result: CuckooResult,
+    wall: float,
+) -> tuple[dict[str, float], list[str], dict[str, Any]]:
+    """Log the winning gains (params, ``gains.yaml``), their metrics and the gains on a bound;
+    returns the metrics, the gains on a bound and the gains by name."""
+    n = len(cfg.robot.lengths)
+    if not np.isfinite(result.best_f):
+        raise ConfigError(
+            f"tune found no feasible gains for {cfg.controller.name}: all "
+            f"{result.n_evaluations} candidates in controller.bounds were unstable at some "
+            f"pose (tuner.objective.gain_margin={cfg.tuner.objective.gain_margin}) or "
+            "diverged; narrow the gains' upper bounds or raise the budget."
+        )
+    best = space.gains(result.best_x)[0]
+    metrics, bound_hits = _best_metrics(objective, space, best)
+    metrics.update(
+        n_evaluations=float(result.n_evaluations),
+        wall_time_s=wall,
+        evaluations_per_s=result.n_evaluations / wall if wall > 0 else float("nan"),
+    )
+    # best_objective's last history point is the final value; not logged again here.
+    mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
+    mlflow.set_tag(GAINS_ON_BOUND_TAG, ", ".join(bound_hits) or "none")
+    mapping = gain_mapping(objective.kind, best, n)
+    names = gain_names(objective.kind, n)
+    mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, best, strict=True)})
+    mlflow.log_text(yaml.safe_dump(mapping, sort_keys=False), "gains.yaml")
+    return metrics, bound_hits, mapping
+
+
 def run(composed: DictConfig) -> tracking.StageResult:
     """Tune on `READS`' view of the composed config; the run logs the composed config whole."""
     cfg = READS.view(composed)
@@ -253,37 +297,12 @@ def run(composed: DictConfig) -> tracking.StageResult:
         mlflow.set_tags({CRITERION_TAG: criterion, HORIZON_TAG: f"{settings.horizon:g}"})
         objective = build_objective(cfg)
         n = len(cfg.robot.lengths)
-        kind = objective.kind
-        paper = build_objective(cfg, kind=ADAPTIVE) if kind != ADAPTIVE else objective
-        reference = {
-            "objective_paper_gains": float(paper(gain_vector(ADAPTIVE, PAPER_GAINS, n)[None])[0]),
-            "objective_config_gains": float(objective(controller_gains(cfg)[None])[0]),
-        }
+        reference = _reference(cfg, objective, n)
         mlflow.log_metrics({k: v for k, v in reference.items() if np.isfinite(v)})
 
         result, wall = _search(cfg, space, objective)
         tracking.log_dataframe(_candidates(space, result, n), "candidates.csv")
-        if not np.isfinite(result.best_f):
-            raise ConfigError(
-                f"tune found no feasible gains for {cfg.controller.name}: all "
-                f"{result.n_evaluations} candidates in controller.bounds were unstable at some "
-                f"pose (tuner.objective.gain_margin={cfg.tuner.objective.gain_margin}) or "
-                "diverged; narrow the gains' upper bounds or raise the budget."
-            )
-        best = space.gains(result.best_x)[0]
-        metrics, bound_hits = _best_metrics(objective, space, best)
-        metrics.update(
-            n_evaluations=float(result.n_evaluations),
-            wall_time_s=wall,
-            evaluations_per_s=result.n_evaluations / wall if wall > 0 else float("nan"),
-        )
-        # best_objective's last history point is the final value; not logged again here.
-        mlflow.log_metrics({k: v for k, v in metrics.items() if np.isfinite(v)})
-        mlflow.set_tag(GAINS_ON_BOUND_TAG, ", ".join(bound_hits) or "none")
-        mapping = gain_mapping(kind, best, n)
-        names = gain_names(kind, n)
-        mlflow.log_params({f"tuned.{k}": v for k, v in zip(names, best, strict=True)})
-        mlflow.log_text(yaml.safe_dump(mapping, sort_keys=False), "gains.yaml")
+        metrics, bound_hits, mapping = _log_best(cfg, space, objective, result, wall)
         fig = _convergence_figure(result, reference, criterion)
         mlflow.log_figure(fig, "convergence.png")
         import matplotlib.pyplot as plt

@@ -45,20 +45,25 @@ returns and whether it is called in batches or per candidate, so a seed fixes th
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from armexp.tune.cuckoo_settings import (
+    ABANDON_RULES,
+    FloatArray,
+    Settings,
+    as_bounds,
+    check_arguments,
+    fail,
+    n_abandoned,
+)
+
 __all__ = ["ABANDON_RULES", "CuckooResult", "cuckoo_search", "n_abandoned"]
 
-#: The abandonment rules of phase 2 (docs/design.md §5).
-ABANDON_RULES = ("worst", "per_component")
-
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 
@@ -94,63 +99,6 @@ class CuckooResult:
 
 Objective = Callable[[FloatArray], Any]
 Callback = Callable[[int, CuckooResult], None]
-
-
-def _fail(message: str) -> NoReturn:
-    raise ValueError(message)
-
-
-def _as_bounds(name: str, value: ArrayLike) -> FloatArray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"{name}={value!r} is not a sequence of numbers; give one number per dimension."
-        ) from None
-    if arr.ndim != 1:
-        _fail(
-            f"{name} has shape {arr.shape}; it must be a 1-D sequence with one number "
-            "per dimension."
-        )
-    if arr.size == 0:
-        _fail(f"{name}={value!r} is empty; give at least one bound.")
-    bad = np.flatnonzero(~np.isfinite(arr))
-    if bad.size:
-        i = int(bad[0])
-        _fail(f"{name}[{i}]={float(arr[i])!r} is not finite; every bound must be a finite number.")
-    return arr
-
-
-def _as_real(name: str, value: object) -> float:
-    if isinstance(value, bool):
-        _fail(f"{name}={value!r} is not a number.")
-    try:
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}={value!r} is not a number.") from None
-
-
-def _as_int(name: str, value: object, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        _fail(f"{name}={value!r} is not an integer; it must be an integer >= {minimum}.")
-    result = int(value)
-    if result < minimum:
-        _fail(f"{name}={result} is too small; it must be an integer >= {minimum}.")
-    return result
-
-
-def _mantegna_sigma(beta: float) -> float:
-    num = math.gamma(1.0 + beta) * math.sin(math.pi * beta / 2.0)
-    den = math.gamma((1.0 + beta) / 2.0) * beta * 2.0 ** ((beta - 1.0) / 2.0)
-    # At beta == 2 the sine is ~1e-16 (possibly of either sign in other libms); the Lévy step
-    # then vanishes, which is the documented degenerate limit rather than an error.
-    return float(max(num / den, 0.0) ** (1.0 / beta))
-
-
-def n_abandoned(n_nests: int, pa: float) -> int:
-    """Nests discarded per iteration by the ``"worst"`` rule: ``pa * n_nests`` rounded half up,
-    capped at ``n_nests - 1`` so the best nest always survives."""
-    return min(math.floor(pa * n_nests + 0.5), n_nests - 1)
 
 
 def cuckoo_search(
@@ -207,173 +155,187 @@ def cuckoo_search(
             of values or something that is not a number; the message is one sentence naming
             the offending argument and value.
     """
-    lo = _as_bounds("lower", lower)
-    hi = _as_bounds("upper", upper)
-    if lo.shape != hi.shape:
-        _fail(
-            f"lower has {lo.size} entries but upper has {hi.size}; they must have the same "
-            "length, one per dimension."
-        )
-    not_below = np.flatnonzero(lo >= hi)
-    if not_below.size:
-        i = int(not_below[0])
-        relation = "equal to" if lo[i] == hi[i] else "greater than"
-        _fail(
-            f"lower[{i}]={float(lo[i])!r} is {relation} upper[{i}]={float(hi[i])!r}; "
-            "every lower bound must be strictly below its upper bound."
-        )
-    n = _as_int("n_nests", n_nests, 2)
-    n_iter = _as_int("n_iterations", n_iterations, 0)
-    pa_f = _as_real("pa", pa)
-    if not 0.0 <= pa_f <= 1.0:
-        _fail(f"pa={pa_f!r} is outside [0, 1]; it is a probability.")
-    beta_f = _as_real("beta", beta)
-    if not 0.0 < beta_f <= 2.0:
-        _fail(f"beta={beta_f!r} is outside (0, 2]; the Lévy exponent must satisfy 0 < beta <= 2.")
-    scale = _as_real("step_scale", step_scale)
-    if not (scale > 0.0 and math.isfinite(scale)):
-        _fail(f"step_scale={scale!r} is not allowed; it must be a finite number above 0.")
-    if not isinstance(abandon, str) or abandon not in ABANDON_RULES:
-        _fail(
-            f"abandon={abandon!r} is not a known rule; it must be one of "
-            f"{', '.join(ABANDON_RULES)}."
-        )
+    s = check_arguments(lower, upper, n_nests, n_iterations, pa, beta, step_scale, abandon)
     if callback is not None and not callable(callback):
-        _fail(f"callback={callback!r} is not callable; give a function or None.")
+        fail(f"callback={callback!r} is not callable; give a function or None.")
     if not callable(objective):
-        _fail(f"objective={objective!r} is not callable; give a function.")
-
-    d = lo.size
-    span = hi - lo
-    sigma_u = _mantegna_sigma(beta_f)
+        fail(f"objective={objective!r} is not callable; give a function.")
     rng = np.random.default_rng(seed)
+    record = _Record(objective, batch, s)
+    nests = _initial_nests(rng, s, start)
+    keys = record.evaluate(nests, 0)
+    for it in range(1, s.n_iter + 1):
+        _levy_flights(rng, nests, keys, s, record, it)
+        _abandonment(rng, nests, keys, s, record, it)
+        best = int(np.argmin(keys))
+        record.history[it - 1] = keys[best]
+        if callback is not None:
+            callback(it, record.snapshot(it, nests, keys, best))
+    return record.result(nests, keys)
 
-    n_worst = n_abandoned(n, pa_f) if abandon == "worst" else n
-    total = n + n_iter * (n + n_worst)
-    evaluations = np.empty((total, d), dtype=np.float64)
-    scores = np.empty(total, dtype=np.float64)
-    iterations = np.empty(total, dtype=np.int64)
-    history = np.empty(n_iter, dtype=np.float64)
-    n_done = 0
 
-    def evaluate(candidates: FloatArray, iteration: int) -> FloatArray:
+def _score(objective: Objective, candidates: FloatArray, batch: bool) -> FloatArray:
+    """The objective's values of ``candidates`` (one call, or one per candidate), as returned."""
+    m = candidates.shape[0]
+    if batch:
+        raw = objective(candidates.copy())
+        try:
+            values = np.asarray(raw, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"objective returned {raw!r} for a batch of {m} candidates; it must return "
+                f"{m} numbers."
+            ) from None
+        if values.size != m:
+            fail(
+                f"objective returned {values.size} values for a batch of {m} candidates; "
+                f"it must return exactly {m} (one per row), or use batch=False."
+            )
+        return values
+    values = np.empty(m, dtype=np.float64)
+    for k in range(m):
+        raw = objective(candidates[k].copy())
+        try:
+            one = np.asarray(raw, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            one = np.empty(0)
+        if one.size != 1:
+            fail(
+                f"objective returned {raw!r} for one candidate; with batch=False it "
+                "must return a single number."
+            )
+        values[k] = one[0]
+    return values
+
+
+class _Record:
+    """Every candidate one run evaluates, in order, with its score and iteration, and the best
+    value after each iteration."""
+
+    def __init__(self, objective: Objective, batch: bool, s: Settings) -> None:
+        self.objective, self.batch = objective, batch
+        total = s.n + s.n_iter * (s.n + s.n_worst)
+        self.evaluations = np.empty((total, s.d), dtype=np.float64)
+        self.scores = np.empty(total, dtype=np.float64)
+        self.iterations = np.empty(total, dtype=np.int64)
+        self.history = np.empty(s.n_iter, dtype=np.float64)
+        self.n_done = 0
+
+    def evaluate(self, candidates: FloatArray, iteration: int) -> FloatArray:
         """Score ``candidates``, record them, and return NaN-free ranking keys."""
-        nonlocal n_done
         m = candidates.shape[0]
         if m == 0:
             return np.empty(0, dtype=np.float64)
-        if batch:
-            raw = objective(candidates.copy())
-            try:
-                values = np.asarray(raw, dtype=np.float64).reshape(-1)
-            except (TypeError, ValueError):
-                raise ValueError(
-                    f"objective returned {raw!r} for a batch of {m} candidates; it must return "
-                    f"{m} numbers."
-                ) from None
-            if values.size != m:
-                _fail(
-                    f"objective returned {values.size} values for a batch of {m} candidates; "
-                    f"it must return exactly {m} (one per row), or use batch=False."
-                )
-        else:
-            values = np.empty(m, dtype=np.float64)
-            for k in range(m):
-                raw = objective(candidates[k].copy())
-                try:
-                    one = np.asarray(raw, dtype=np.float64).reshape(-1)
-                except (TypeError, ValueError):
-                    one = np.empty(0)
-                if one.size != 1:
-                    _fail(
-                        f"objective returned {raw!r} for one candidate; with batch=False it "
-                        "must return a single number."
-                    )
-                values[k] = one[0]
-        stop = n_done + m
-        evaluations[n_done:stop] = candidates
-        scores[n_done:stop] = values
-        iterations[n_done:stop] = iteration
-        n_done = stop
+        values = _score(self.objective, candidates, self.batch)
+        stop = self.n_done + m
+        self.evaluations[self.n_done : stop] = candidates
+        self.scores[self.n_done : stop] = values
+        self.iterations[self.n_done : stop] = iteration
+        self.n_done = stop
         return np.where(np.isnan(values), np.inf, values)
 
-    def snapshot(iteration: int, best: int) -> CuckooResult:
-        views = (history[:iteration], evaluations[:n_done], scores[:n_done], iterations[:n_done])
+    def snapshot(
+        self, iteration: int, nests: FloatArray, keys: FloatArray, best: int
+    ) -> CuckooResult:
+        """The result so far, its arrays read-only views (for the callback)."""
+        n = self.n_done
+        views = (self.history[:iteration], self.evaluations[:n], self.scores[:n],
+                 self.iterations[:n])  # fmt: skip
         for view in views:
             view.flags.writeable = False
         return CuckooResult(
             best_x=nests[best].copy(),
             best_f=float(keys[best]),
             history=views[0],
-            n_evaluations=n_done,
+            n_evaluations=n,
             evaluations=views[1],
             scores=views[2],
             iterations=views[3],
         )
 
-    nests = lo + rng.random((n, d)) * span
+    def result(self, nests: FloatArray, keys: FloatArray) -> CuckooResult:
+        best = int(np.argmin(keys))
+        return CuckooResult(
+            best_x=nests[best].copy(),
+            best_f=float(keys[best]),
+            history=self.history,
+            n_evaluations=self.n_done,
+            evaluations=self.evaluations,
+            scores=self.scores,
+            iterations=self.iterations,
+        )
+
+
+def _initial_nests(rng: np.random.Generator, s: Settings, start: ArrayLike | None) -> FloatArray:
+    """The initial population, drawn uniformly in the box; ``start`` (clipped) as the first."""
+    nests = s.lo + rng.random((s.n, s.d)) * (s.hi - s.lo)
     if start is not None:
-        first = _as_bounds("start", start)
-        if first.shape != lo.shape:
-            _fail(f"start has {first.size} entries; it must have one per dimension ({d}).")
-        nests[0] = np.clip(first, lo, hi)
-    keys = evaluate(nests, 0)
+        first = as_bounds("start", start)
+        if first.shape != s.lo.shape:
+            fail(f"start has {first.size} entries; it must have one per dimension ({s.d}).")
+        nests[0] = np.clip(first, s.lo, s.hi)
+    return nests
 
-    for it in range(1, n_iter + 1):
-        # Lévy flights (eqs. 15-18). The draws are made as whole arrays up front so their
-        # order, and hence the run, does not depend on the objective or on ``batch``.
-        best = int(np.argmin(keys))
-        u = rng.standard_normal((n, d)) * sigma_u
-        v = rng.standard_normal((n, d))
-        ell = rng.standard_normal((n, d))
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            stp = u / np.abs(v) ** (1.0 / beta_f)
-            proposal = nests + ell * (scale * stp * (nests - nests[best]))
-        # v can be ~0, giving an inf/NaN step; a NaN would survive np.clip, so fall back to
-        # the unmoved nest for those components (inf is clipped to the bound as usual).
-        proposal = np.where(np.isnan(proposal), nests, proposal)
-        np.clip(proposal, lo, hi, out=proposal)
-        new_keys = evaluate(proposal, it)
-        better = new_keys < keys
-        nests[better] = proposal[better]
-        keys[better] = new_keys[better]
 
-        # Abandonment (eq. 19): a differential step between two randomly paired nests. The
-        # same draws are made under both rules, whatever the scores.
-        discovered = rng.random((n, d)) < pa_f
-        iota = rng.permutation(n)
-        kappa = rng.permutation(n)
-        r = rng.random((n, 1))
-        walk = r * (nests[iota] - nests[kappa])
-        if abandon == "per_component":
-            # Only the discovered components move; greedy replacement.
-            proposal = nests + walk * discovered
-            np.clip(proposal, lo, hi, out=proposal)
-            new_keys = evaluate(proposal, it)
-            better = new_keys < keys
-            nests[better] = proposal[better]
-            keys[better] = new_keys[better]
-        else:
-            # The n_worst worst nests (ties: the later index is the worse) are discarded and
-            # rebuilt by the walk on every component; the new nests replace them outright.
-            worst = np.argsort(keys, kind="stable")[n - n_worst :]
-            proposal = nests[worst] + walk[worst]
-            np.clip(proposal, lo, hi, out=proposal)
-            nests[worst] = proposal
-            keys[worst] = evaluate(proposal, it)
+def _keep_better(
+    nests: FloatArray, keys: FloatArray, proposal: FloatArray, new_keys: FloatArray
+) -> None:
+    """Greedy replacement: a proposal takes its nest's place where strictly better."""
+    better = new_keys < keys
+    nests[better] = proposal[better]
+    keys[better] = new_keys[better]
 
-        best = int(np.argmin(keys))
-        history[it - 1] = keys[best]
-        if callback is not None:
-            callback(it, snapshot(it, best))
 
+def _levy_flights(
+    rng: np.random.Generator,
+    nests: FloatArray,
+    keys: FloatArray,
+    s: Settings,
+    record: _Record,
+    it: int,
+) -> None:
+    """Phase 1 (eqs. 15-18): one Lévy flight per nest, relative to the best nest."""
+    # The draws are made as whole arrays up front so their order, and hence the run, does not
+    # depend on the objective or on ``batch``.
     best = int(np.argmin(keys))
-    return CuckooResult(
-        best_x=nests[best].copy(),
-        best_f=float(keys[best]),
-        history=history,
-        n_evaluations=n_done,
-        evaluations=evaluations,
-        scores=scores,
-        iterations=iterations,
-    )
+    u = rng.standard_normal((s.n, s.d)) * s.sigma_u
+    v = rng.standard_normal((s.n, s.d))
+    ell = rng.standard_normal((s.n, s.d))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        stp = u / np.abs(v) ** (1.0 / s.beta)
+        proposal = nests + ell * (s.scale * stp * (nests - nests[best]))
+    # v can be ~0, giving an inf/NaN step; a NaN would survive np.clip, so fall back to
+    # the unmoved nest for those components (inf is clipped to the bound as usual).
+    proposal = np.where(np.isnan(proposal), nests, proposal)
+    np.clip(proposal, s.lo, s.hi, out=proposal)
+    _keep_better(nests, keys, proposal, record.evaluate(proposal, it))
+
+
+def _abandonment(
+    rng: np.random.Generator,
+    nests: FloatArray,
+    keys: FloatArray,
+    s: Settings,
+    record: _Record,
+    it: int,
+) -> None:
+    """Phase 2 (eq. 19): a differential step between two randomly paired nests, by the rule
+    ``s.abandon``. The same draws are made under both rules, whatever the scores."""
+    discovered = rng.random((s.n, s.d)) < s.pa
+    iota = rng.permutation(s.n)
+    kappa = rng.permutation(s.n)
+    r = rng.random((s.n, 1))
+    walk = r * (nests[iota] - nests[kappa])
+    if s.abandon == "per_component":
+        # Only the discovered components move; greedy replacement.
+        proposal = nests + walk * discovered
+        np.clip(proposal, s.lo, s.hi, out=proposal)
+        _keep_better(nests, keys, proposal, record.evaluate(proposal, it))
+    else:
+        # The n_worst worst nests (ties: the later index is the worse) are discarded and
+        # rebuilt by the walk on every component; the new nests replace them outright.
+        worst = np.argsort(keys, kind="stable")[s.n - s.n_worst :]
+        proposal = nests[worst] + walk[worst]
+        np.clip(proposal, s.lo, s.hi, out=proposal)
+        nests[worst] = proposal
+        keys[worst] = record.evaluate(proposal, it)

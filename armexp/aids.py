@@ -1,0 +1,77 @@
+"""The learning aids' declarations: for each aid, its name in ``agent.aids`` (as the presets spell
+it), the add-on class its ``_target_`` names, whether it uses privileged knowledge, its short name
+for captions and its Table II text.
+
+This is the one place that says so. The add-on classes (`armexp.agents.addons.TrainingAddOn`)
+point at their declaration (``declaration``), and the report reads the declarations to name a
+stored run's aids; the report runs without the agent code (torch, SB3), so the declarations are
+plain data here rather than attributes the report would have to import the classes to read.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+
+def number_arg(args: Mapping[str, Any], key: str) -> float:
+    """Argument ``key`` of a stored aid config as a number (0 when missing or not a number):
+    the report describes old runs too, whatever they logged."""
+    try:
+        value = float(args.get(key))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return 0.0
+    return value if math.isfinite(value) else 0.0
+
+
+@dataclass(frozen=True)
+class AidDeclaration:
+    """One learning aid, as training composes it and the report names it."""
+
+    #: Its name in ``agent.aids``.
+    name: str
+    #: The ``_target_`` of its add-on class.
+    target: str
+    #: Uses privileged knowledge (the planner, the obstacles): a run with it is aided.
+    privileged: bool
+    #: Its short name in the report's captions.
+    title: str
+    #: What it does with its arguments (its config, as a run logged it), for Table II.
+    describe: Callable[[Mapping[str, Any]], str]
+
+
+DEMONSTRATIONS = AidDeclaration(
+    "demonstrations", "armexp.agents.demonstrations.PlannerDemonstrations", True,
+    "demonstrations",
+    lambda a: f"{int(number_arg(a, 'episodes'))} planner demonstrations in the replay buffer",
+)  # fmt: skip
+CLONING = AidDeclaration(
+    "cloning", "armexp.agents.cloning.BehaviourCloning", True, "behaviour cloning",
+    lambda a: f"behaviour cloning of the demonstrations (weight {number_arg(a, 'weight'):g})",
+)  # fmt: skip
+EXPERT = AidDeclaration(
+    "expert", "armexp.agents.expert.DaggerExpert", True, "DAgger expert",
+    lambda a: "DAgger: the planner's action cloned on every visited state",
+)  # fmt: skip
+AVERAGING = AidDeclaration(
+    "averaging", "armexp.agents.averaging.WeightAveraging", False, "weight averaging",
+    lambda a: (
+        f"final actor averaged over the last {number_arg(a, 'tail') * 100:g} % of the budget"
+    ),
+)  # fmt: skip
+#: Every aid, in the order the presets list them.
+AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING)
+
+
+def declared(target: str) -> AidDeclaration | None:
+    """The declaration of ``target``, an add-on's ``_target_`` or an aid's name; None for any
+    other."""
+    return next((a for a in AIDS if target in (a.target, a.name)), None)
+
+
+def privileged_modules() -> tuple[str, ...]:
+    """The modules of the aids that use privileged knowledge: anything else of theirs that a
+    config composes (another add-on, a callback) uses that knowledge too."""
+    return tuple(dict.fromkeys(a.target.rpartition(".")[0] for a in AIDS if a.privileged))
