@@ -97,9 +97,9 @@ def tables_of(hpo: Hpo, weights: dict[str, float], note: str) -> list[Table]:
             shown,
             numbers,
             notes=[
-                f"{len(hpo.trials)} trials ({counts}); value: "
-                f"{hpo.about.get('how', '')} objective, the interquartile mean of the "
-                f"final held-out success over seeds {hpo.about.get('seeds')}."
+                f"{len(hpo.trials)} trials ({counts}) of {hpo.about.get('how', 'an HPO')}; "
+                "value: the interquartile mean of the final held-out success over seeds "
+                f"{hpo.about.get('seeds')}."
             ],
             caption=f"HPO run {hpo.run_id}",
         )
