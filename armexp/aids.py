@@ -1,6 +1,6 @@
 """The learning aids' declarations: for each aid, its name in ``agent.aids`` (as the presets spell
 it), the add-on class its ``_target_`` names, whether it uses privileged knowledge, its short name
-for captions and its Table II text.
+for captions, its Table II text and the ``agent.algo`` values it applies to.
 
 This is the one place that says so. The add-on classes (`armexp.agents.addons.TrainingAddOn`)
 point at their declaration (``declaration``), and the report reads the declarations to name a
@@ -14,6 +14,12 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+from armexp.config.agent_schema import ALGORITHMS
+
+#: Every ``agent.algo``, and those that learn from a replay buffer.
+ALL_ALGORITHMS = frozenset(ALGORITHMS)
+OFF_POLICY = frozenset({"sac", "td3", "tqc", "crossq"})
 
 
 def number_arg(args: Mapping[str, Any], key: str) -> float:
@@ -40,26 +46,33 @@ class AidDeclaration:
     title: str
     #: What it does with its arguments (its config, as a run logged it), for Table II.
     describe: Callable[[Mapping[str, Any]], str]
+    #: The ``agent.algo`` values it applies to; another is refused before a run starts
+    #: (`armexp.config.check_aid`).
+    algorithms: frozenset[str] = ALL_ALGORITHMS
 
 
 DEMONSTRATIONS = AidDeclaration(
     "demonstrations", "armexp.agents.demonstrations.PlannerDemonstrations", True,
     "demonstrations",
     lambda a: f"{int(number_arg(a, 'episodes'))} planner demonstrations in the replay buffer",
+    OFF_POLICY,  # PPO has no replay buffer
 )  # fmt: skip
 CLONING = AidDeclaration(
     "cloning", "armexp.agents.cloning.BehaviourCloning", True, "behaviour cloning",
     lambda a: f"behaviour cloning of the demonstrations (weight {number_arg(a, 'weight'):g})",
+    frozenset({"sac"}),  # a term of SAC's own actor update (armexp.agents.sac)
 )  # fmt: skip
 EXPERT = AidDeclaration(
     "expert", "armexp.agents.expert.DaggerExpert", True, "DAgger expert",
     lambda a: "DAgger: the planner's action cloned on every visited state",
+    frozenset({"sac"}),  # it adds to what the cloning aid clones
 )  # fmt: skip
 AVERAGING = AidDeclaration(
     "averaging", "armexp.agents.averaging.WeightAveraging", False, "weight averaging",
     lambda a: (
         f"final actor averaged over the last {number_arg(a, 'tail') * 100:g} % of the budget"
     ),
+    OFF_POLICY,  # a separate actor; PPO's shares one module with its value network
 )  # fmt: skip
 #: Every aid, in the order the presets list them.
 AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING)

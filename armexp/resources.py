@@ -11,7 +11,8 @@ and torch, is a few hundred MB on top):
   array, the table written to Parquet);
 * ``train`` and ``pipeline``: SB3's replay buffer, ``agent.buffer_size`` transitions of float32
   (observation and next observation of `armexp.envs.observation.ObservationLayout`, the action,
-  reward, done and time-out flags), allocated whole when training starts; and the
+  reward, done and time-out flags), allocated whole when training starts (PPO: its rollout
+  buffer, ``agent.ppo.n_steps`` × ``agent.n_envs`` such rows, about as large); and the
   ``agent.n_envs`` environments: `ENV_BYTES` each in one process, `PROCESS_BYTES` each as
   processes (``agent.vec_env=subproc``; both measured on the paper arm among five obstacles).
 """
@@ -82,6 +83,10 @@ def _training(cfg: DictConfig) -> list[Item]:
     n_envs, size = int(agent.n_envs), int(agent.buffer_size)
     rows = max(size // n_envs, 1) * n_envs
     buffer = Item("agent.buffer_size", size, rows * transition, transition, "its replay buffer")
+    if agent.get("algo") == "ppo":  # no replay buffer: one rollout of n_steps per environment
+        steps = int(agent.ppo.n_steps)
+        each_row = n_envs * transition
+        buffer = Item("agent.ppo.n_steps", steps, steps * each_row, each_row, "its rollout buffer")
     apart = str(agent.vec_env) == "subproc"
     each = PROCESS_BYTES if apart else ENV_BYTES
     what = f"{n_envs} environment{' processes' if apart else 's'}"

@@ -2,7 +2,8 @@
 
 ``<stage>-<subject>-s<seed>``: ``simulate-pid-switching-s3`` (controller, scenario, seed),
 ``tune-pid-itae-s0`` (controller, criterion, ``tuner.seed``), ``train-sac_quick-s0`` and
-``eval-sac_quick-s0`` (the policy's agent preset, seed), ``report``, ``pipeline-s0``, a study's
+``eval-sac_quick-s0`` (the policy's agent preset and, where the preset is another algorithm's,
+``agent.algo``: ``train-sac_smoke-td3-s0``; seed), ``report``, ``pipeline-s0``, a study's
 ``study-s0-4``. A job of a sweep adds the swept values the name does not already show
 (``tune-pid-itae-s0-tuner.pa=0.1``).
 The user's ``<stage>.run_name`` wins.
@@ -14,13 +15,14 @@ from collections.abc import Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from armexp.tags import AGENT_PRESET_TAG
+from armexp.config.agent_schema import agent_label
+from armexp.tags import AGENT_ALGO_TAG, AGENT_PRESET_TAG
 
 #: Config keys each stage's name shows already; a sweep over one of them adds no suffix.
 SHOWN: dict[str, tuple[str, ...]] = {
     "simulate": ("controller", "controller.name", "scenario", "scenario.kind", "seed"),
     "tune": ("controller", "controller.name", "tuner.objective.criterion", "tuner.seed"),
-    "train": ("agent", "seed"),
+    "train": ("agent", "agent.algo", "seed"),
     "eval": ("seed",),
     "pipeline": ("seed", "pipeline.seeds"),
 }
@@ -46,7 +48,7 @@ def _subject(cfg: DictConfig, stage: str, tags: Mapping[str, str]) -> list[str]:
     if stage == "tune":
         return [str(cfg.controller.name), str(cfg.tuner.objective.criterion), f"s{cfg.tuner.seed}"]
     if stage in ("train", "eval", "play"):
-        preset = tags.get(AGENT_PRESET_TAG)
+        preset = agent_label(tags.get(AGENT_PRESET_TAG), tags.get(AGENT_ALGO_TAG))
         extra = [str(cfg.play.controller)] if stage == "play" and cfg.play.controller else []
         return [*([preset] if preset else []), *extra, seed]
     if stage == "pipeline":

@@ -46,6 +46,10 @@ PID_TUNE_RUN_TAG = "armexp.pid_tune_run"
 GAINS_SOURCE_TAG = "armexp.gains_source"
 #: The agent config group option a policy was trained with (train and eval runs).
 AGENT_PRESET_TAG = "armexp.agent_preset"
+#: Its ``agent.algo`` (train and eval runs), and the preset's options that algorithm does not
+#: read (train runs where there are any; `armexp.agents.factory.usage`).
+AGENT_ALGO_TAG = "armexp.agent_algo"
+AGENT_LEFT_OUT_TAG = "armexp.agent_left_out"
 #: The step a resumed train run continued from, and why a train run stopped.
 RESUMED_TAG = "armexp.resumed_from_step"
 STOP_REASON_TAG = "armexp.stop_reason"

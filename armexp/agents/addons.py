@@ -22,19 +22,21 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from armexp.aids import AidDeclaration
-from armexp.config import ConfigError
+from armexp.aids import ALL_ALGORITHMS, AidDeclaration
+from armexp.config import ConfigError, check_aid
 from armexp.envs.reach import ReachSettings
 
 if TYPE_CHECKING:
-    from armexp.agents.sac import ResumableSAC
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 @dataclass
 class TrainingContext:
     """What the aids of one training run share."""
 
-    model: ResumableSAC
+    #: The model of ``agent.algo`` (`armexp.agents.factory`); an aid may rely on what its
+    #: ``algorithms`` guarantee (a replay buffer, SAC's actor terms).
+    model: BaseAlgorithm
     settings: ReachSettings
     seed: int
     #: True when the run continues from a checkpoint (its replay buffer starts empty).
@@ -56,7 +58,7 @@ class TrainingContext:
 
 
 class TrainingAddOn:
-    """One add-on to SAC's training (see the module doc)."""
+    """One add-on to an agent's training (see the module doc)."""
 
     #: Its declaration (`armexp.aids`): its name, whether it uses privileged knowledge (the
     #: planner, the obstacles: the run is aided), and how the report names it. None: an add-on
@@ -64,6 +66,14 @@ class TrainingAddOn:
     declaration: ClassVar[AidDeclaration | None] = None
     #: Aids that must come before this one in ``agent.aids`` (by class).
     needs: ClassVar[tuple[type[TrainingAddOn], ...]] = ()
+    #: The ``agent.algo`` values it applies to (a declared aid's, from its declaration);
+    #: another is refused before a run starts (`armexp.config.check_aid`).
+    algorithms: ClassVar[frozenset[str]] = ALL_ALGORITHMS
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.declaration is not None and "algorithms" not in cls.__dict__:
+            cls.algorithms = cls.declaration.algorithms
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         """Before training: change the model or the context; the callbacks to run."""
@@ -74,9 +84,11 @@ class TrainingAddOn:
         return {}
 
 
-def build_addons(specs: Mapping[str, Any], where: str = "agent.aids") -> list[TrainingAddOn]:
-    """The add-ons of ``specs`` (the config at ``where``), in order; a bad entry is one
-    `ConfigError` sentence naming its key."""
+def build_addons(
+    specs: Mapping[str, Any], where: str = "agent.aids", algo: str | None = None
+) -> list[TrainingAddOn]:
+    """The add-ons of ``specs`` (the config at ``where``), in order, for ``agent.algo=algo``
+    (None: not checked); a bad entry is one `ConfigError` sentence naming its key."""
     from hydra.utils import instantiate
 
     aids: list[TrainingAddOn] = []
@@ -95,6 +107,8 @@ def build_addons(specs: Mapping[str, Any], where: str = "agent.aids") -> list[Tr
                 f"{key}._target_={spec.get('_target_')} is not allowed: it is not a training "
                 "add-on (armexp.agents.addons.TrainingAddOn)."
             )
+        if algo is not None:
+            check_aid(key, type(aid).__name__, aid.algorithms, algo)
         for need in aid.needs:
             if not any(isinstance(a, need) for a in aids):
                 raise ConfigError(

@@ -40,7 +40,7 @@ class ActorAverage(BaseCallback):
 
     @property
     def actor(self) -> torch.nn.Module:
-        return cast(SAC, self.model).actor
+        return cast(SAC, self.model).actor  # SAC, TD3, TQC and CrossQ all have one
 
     def add(self) -> None:
         """Adds the actor's current weights to the average."""
@@ -67,7 +67,9 @@ class ActorAverage(BaseCallback):
 class WeightAveraging(TrainingAddOn):
     """The final actor is the mean of its weights over the last ``tail`` share of the budget
     (`ActorAverage`; ``final/averaged_actors`` says how many). The checkpoint keeps the last
-    weights; a resumed run averages from where it resumes. Uses no privileged knowledge."""
+    weights; a resumed run averages from where it resumes. Uses no privileged knowledge.
+    The off-policy algorithms only, whose policies have a separate ``actor`` (PPO's actor and
+    value network share one policy module)."""
 
     declaration = aids.AVERAGING
 

@@ -22,8 +22,6 @@ part of a checkpoint: a resumed run labels afresh.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
@@ -31,9 +29,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
-
-if TYPE_CHECKING:
-    from armexp.agents.sac import ResumableSAC
+from armexp.agents.sac import ResumableSAC
 
 
 class DemonstrationCloning:
@@ -126,7 +122,9 @@ class DemonstrationCloning:
 
 class BehaviourCloning(TrainingAddOn):
     """The cloning term above, with weight ``weight``, on the planner's demonstrations (listed
-    before it in ``agent.aids``). Privileged: it imitates the planner."""
+    before it in ``agent.aids``). Privileged: it imitates the planner. SAC only: the term
+    joins SAC's actor update (`armexp.agents.sac.ResumableSAC`), which the other algorithms'
+    library updates have no place for."""
 
     declaration = aids.CLONING
     needs = (PlannerDemonstrations,)
@@ -137,5 +135,7 @@ class BehaviourCloning(TrainingAddOn):
         self.weight = float(weight)
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        ctx.shared["cloning"] = DemonstrationCloning(ctx.model, planned(ctx), self.weight, ctx.seed)
+        model = ctx.model
+        assert isinstance(model, ResumableSAC)  # its declaration says so
+        ctx.shared["cloning"] = DemonstrationCloning(model, planned(ctx), self.weight, ctx.seed)
         return []

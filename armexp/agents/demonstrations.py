@@ -148,7 +148,7 @@ def planned(ctx: TrainingContext) -> list[Demonstration]:
 class PlannerDemonstrations(TrainingAddOn):
     """``episodes`` planner episodes in the replay buffer before training (module doc); a
     resumed run's buffer starts empty and gets none. Privileged: the planner knows the
-    obstacles."""
+    obstacles. Off-policy algorithms only: PPO has no replay buffer."""
 
     declaration = aids.DEMONSTRATIONS
 
@@ -160,5 +160,6 @@ class PlannerDemonstrations(TrainingAddOn):
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         ctx.demo_episodes = self.episodes
         if not ctx.resumed:
+            assert isinstance(ctx.model, OffPolicyAlgorithm)  # its declaration says so
             fill_replay(ctx.model, planned(ctx))
         return []

@@ -194,7 +194,8 @@ class DaggerExpert(TrainingAddOn):
     """DAgger: every state the training environments visit is cloned with the action of a
     `TimeToGoExpert` kept ``margin`` (m) from obstacles that compares commands held
     ``lookahead`` steps; up to the replay buffer's size of such steps are kept beside the
-    demonstrations. Needs the cloning aid before it. Privileged: the planner labels."""
+    demonstrations. Needs the cloning aid before it, so SAC only. Privileged: the planner
+    labels."""
 
     declaration = aids.EXPERT
     needs = (BehaviourCloning,)
@@ -207,5 +208,5 @@ class DaggerExpert(TrainingAddOn):
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
         cloning = ctx.shared.get("cloning")
         assert isinstance(cloning, DemonstrationCloning)  # `needs` put the cloning aid first
-        cloning.reserve(int(ctx.model.buffer_size))
+        cloning.reserve(int(cloning.model.buffer_size))
         return [ExpertLabels(TimeToGoExpert(ctx.settings, self.margin, self.lookahead), cloning)]

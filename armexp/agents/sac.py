@@ -12,17 +12,19 @@ from omegaconf import DictConfig
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
 
+from armexp.agents.algorithms import ResumeRefill
 from armexp.agents.compiled import CompiledUpdate
 from armexp.agents.terms import ActorTerm
 from armexp.config import ConfigError
 from armexp.resources import device_here
 
 
-class ResumableSAC(SAC):
+class ResumableSAC(ResumeRefill, SAC):
     """SB3's SAC with these changes.
 
     - Once resumed from a checkpoint, it refills its (empty) replay buffer with its own policy
-      instead of the uniform random actions SB3 uses before ``learning_starts``.
+      instead of the uniform random actions SB3 uses before ``learning_starts``
+      (`armexp.agents.algorithms.ResumeRefill`, as the other off-policy algorithms).
     - `train` is SB3's update (Algorithm 1, lines 11–15) without the work whose result SB3
       throws away: the critics' parameter gradients of the actor loss (zeroed before the next
       critic step), the recursive train-mode switch when the policy is in train mode already,
@@ -36,7 +38,6 @@ class ResumableSAC(SAC):
       half the time or less.
     """
 
-    resumed = False
     #: How `train` computes the gradients: ``autograd`` (SB3's losses through torch's
     #: autograd) or ``compiled`` (`armexp.agents.compiled`); ``agent.gradients``.
     gradients = "autograd"
@@ -51,13 +52,6 @@ class ResumableSAC(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "actor_terms", "_compiled"]
-
-    def _sample_action(
-        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        if self.resumed:
-            learning_starts = 0
-        return super()._sample_action(learning_starts, action_noise, n_envs)
 
     @property
     def plain_update(self) -> bool:
@@ -165,11 +159,18 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "train_freq": int(agent.train_freq),
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
-        "target_entropy": "auto" if agent.target_entropy is None else float(agent.target_entropy),
+        "target_entropy": target_entropy(agent),
         "n_steps": int(agent.n_steps),
         "policy_kwargs": {"net_arch": arch, "optimizer_kwargs": _adam(agent)},
         "device": device_here(str(agent.device)),
     }
+
+
+def target_entropy(agent: DictConfig) -> str | float:
+    """``agent.target_entropy`` as the libraries take it ("auto" when null; a stored run from
+    before the key: "auto")."""
+    value = agent.get("target_entropy")
+    return "auto" if value is None else float(value)
 
 
 def _without_argument_checks() -> None:

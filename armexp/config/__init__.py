@@ -23,6 +23,7 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from armexp.config.agent_schema import ALGORITHMS
 from armexp.config.checks import Check, ConfigError, fail
 from armexp.config.errors import translate_error
 from armexp.config.filters import check_filter
@@ -31,8 +32,9 @@ from armexp.config.run_keys import quote_ids, takes_ids
 from armexp.config.schema import SCHEMAS, ArmexpConfig
 from armexp.config.workspace import target_problem, workspace_checks
 
-__all__ = ["ConfigError", "compose_config", "compose_unchecked", "config_dir", "expand_home",
-           "register_schemas", "target_problem", "validate"]  # fmt: skip
+__all__ = ["ALGORITHMS", "ConfigError", "check_aid", "compose_config", "compose_unchecked",
+           "config_dir", "expand_home", "register_schemas", "target_problem",
+           "validate"]  # fmt: skip
 
 
 def config_dir() -> Path:
@@ -273,6 +275,15 @@ def _agent_checks(cfg: DictConfig) -> None:
             "budget, agent.max_env_steps ≥ 1 (agent.max_minutes, when set, guards the wall time "
             "beside it)."
         )
+    algo = str(agent.get("algo", "sac"))
+    if algo != "sac" and agent.get("gradients") == "compiled":
+        raise ConfigError(
+            f"agent.gradients=compiled is not allowed with agent.algo={algo}: the compiled update "
+            f"is SAC's own; use agent.gradients=autograd ({algo} runs its library's update) or "
+            "agent.algo=sac."
+        )
+    if algo == "ppo":
+        _rollout_fits(agent)
     for name, spec in (agent.get("aids") or {}).items():
         target = spec.get("_target_") if isinstance(spec, DictConfig) else None
         if not isinstance(target, str) or "." not in target:
@@ -281,6 +292,52 @@ def _agent_checks(cfg: DictConfig) -> None:
                     spec, DictConfig) else spec,
                 "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
+        _check_aid_target(f"agent.aids.{name}", target, algo)
+
+
+def _rollout_fits(agent: DictConfig) -> None:
+    """PPO updates only on a full rollout: one that does not fit the step budget never trains."""
+    rollout = int(agent.ppo.n_steps) * int(agent.n_envs)
+    cap = agent.get("max_env_steps")
+    if cap is not None and rollout > int(cap):
+        raise ConfigError(
+            f"agent.ppo.n_steps={agent.ppo.n_steps} is not allowed with agent.n_envs="
+            f"{agent.n_envs} and agent.max_env_steps={cap}: one PPO rollout ({rollout} steps) "
+            f"must fit the budget, so give agent.ppo.n_steps ≤ {int(cap) // int(agent.n_envs)}."
+        )
+
+
+def _check_aid_target(key: str, target: str, algo: str) -> None:
+    """`check_aid` for the add-on class ``target`` names: a declared aid's algorithms from its
+    declaration (`armexp.aids`, no agent code imported), another add-on's from its class; one
+    that cannot be imported is left to building it, which says why
+    (`armexp.agents.addons.build_addons`)."""
+    from hydra.utils import get_class
+
+    from armexp import aids
+
+    name = target.rpartition(".")[2]
+    declaration = aids.declared(target)
+    if declaration is not None:
+        check_aid(key, name, declaration.algorithms, algo)
+        return
+    try:
+        kind = get_class(target)
+    except Exception:
+        return
+    check_aid(key, name, getattr(kind, "algorithms", None), algo)
+
+
+def check_aid(key: str, name: str, allowed: frozenset[str] | None, algo: str) -> None:
+    """The add-on ``name`` at ``key``, which applies to the algorithms ``allowed`` (None: all),
+    applies to ``agent.algo=algo``."""
+    if allowed is not None and algo not in allowed:
+        fits = [a for a in ALGORITHMS if a in allowed]
+        raise ConfigError(
+            f"{key} is not allowed with agent.algo={algo}: {name} applies to "
+            f"agent.algo={', '.join(fits)} only; remove it (~{key}) or use "
+            + (f"agent.algo={fits[0]}." if len(fits) == 1 else "one of those.")
+        )
 
 
 def _need_whole_periods(key: str, value: float, dt: float) -> None:

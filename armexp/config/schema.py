@@ -13,8 +13,8 @@ from typing import Any
 
 from omegaconf import MISSING
 
+from armexp.config.agent_schema import AgentConfig
 from armexp.config.checks import (
-    Check,
     at_least,
     between,
     checked,
@@ -202,60 +202,6 @@ class TunerConfig:
     #: Search log10 of the coordinates in controller.bounds (each bound must then be > 0).
     log_space: bool = True
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
-
-
-# ------------------------------------------------------------------------------------- agent
-@dataclass
-class AgentConfig:
-    """SB3 SAC hyper-parameters (Table II for ``sac_paper``)."""
-
-    name: str = MISSING
-    algo: str = checked("sac", one_of("sac"))
-    batch_size: int = checked(512, at_least(1))
-    tau: float = checked(0.001, between(0.0, 1.0, lo_open=True))
-    buffer_size: int = checked(1_000_000, at_least(1))
-    learning_starts: int = checked(1000, at_least(0))
-    gamma: float = checked(0.995, between(0.0, 1.0))
-    learning_rate: float = checked(0.001, _pos)
-    episodes: int = checked(20000, at_least(1))
-    train_freq: int = checked(1, at_least(1))
-    gradient_steps: int = checked(1, at_least(1))
-    ent_coef: str = checked(
-        "auto",
-        matches(
-            r"auto(_\d+(\.\d*)?([eE][-+]?\d+)?)?|\d+(\.\d*)?([eE][-+]?\d+)?",
-            "'auto', 'auto_<initial value>' or a number ≥ 0 (SB3's ent_coef)",
-        ),
-    )
-    #: SAC's entropy target (SB3's target_entropy); null: SB3's "auto", −(action dimensions).
-    target_entropy: float | None = None
-    #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
-    n_steps: int = checked(1, at_least(1))
-    net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
-    #: The critics' hidden layers, where they differ from the actor's (None: ``net_arch``).
-    critic_arch: list[int] | None = checked(None, or_null(each(at_least(1))))
-    #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
-    n_envs: int = checked(1, at_least(1))
-    vec_env: str = checked("dummy", one_of("dummy", "subproc"))
-    #: Extra caps on the budget besides ``episodes`` (None: none): environment steps, minutes.
-    max_env_steps: int | None = checked(None, or_null(at_least(1)))
-    max_minutes: float | None = checked(None, or_null(_pos))
-    device: str = checked(
-        "cpu", matches(r"cpu|auto|mps|cuda(:\d+)?", "cpu, auto, mps, cuda or cuda:<index>")
-    )
-    #: How the update runs: ``autograd`` (SB3's update through torch's autograd, eager) or
-    #: ``compiled`` (the same losses as one torch.compile graph, `armexp.agents.compiled`).
-    #: ``analytic`` (gradients written out by hand) was removed: ``compiled`` is faster.
-    gradients: str = checked(
-        "autograd",
-        Check(
-            lambda v: v in ("autograd", "compiled"),
-            "autograd or compiled (the hand-written analytic gradients were removed; use compiled)",
-        ),
-    )
-    #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
-    #: (`armexp.agents.addons`). None for the paper's plain SAC.
-    aids: dict[str, Any] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------- env

@@ -6,9 +6,10 @@ cloning, an expert's labels) is *aided*, and every table built from it says so. 
 such knowledge (weight averaging, …) are named too, but do not make a run aided.
 
 Everything is read from the train run: the preset from the tag ``armexp.agent_preset`` (Hydra's
-``agent`` group choice) or else the param ``agent.name``; the aids from the run's resolved
-``config.yaml`` (else its ``agent.*`` params); the budget spent from its ``final/*`` metrics (else
-the last values logged while training).
+``agent`` group choice) or else the param ``agent.name``; the algorithm from the tag
+``armexp.agent_algo`` or else its config (SAC for runs from before ``agent.algo``); the aids
+from the run's resolved ``config.yaml`` (else its ``agent.*`` params); the budget spent from its
+``final/*`` metrics (else the last values logged while training).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ import yaml
 from mlflow.entities import Run
 
 from armexp import aids
+from armexp.config.agent_schema import TITLES, agent_label
 from armexp.report.runs import metric_value
-from armexp.tags import AGENT_PRESET_TAG, STOP_REASON_TAG
+from armexp.tags import AGENT_ALGO_TAG, AGENT_LEFT_OUT_TAG, AGENT_PRESET_TAG, STOP_REASON_TAG
 
 #: Train-run metrics of the budget spent, newest name first (final/* are logged at the end;
 #: the others while training, so a KILLED run still shows how far it got).
@@ -57,6 +59,14 @@ class AgentInfo:
     known: bool = True
     #: Empty: evaluated with the gains it was trained with; else e.g. "paper gains".
     gains: str = ""
+    #: Its ``agent.algo``, and the preset's options that algorithm does not read.
+    algo: str = "sac"
+    left_out: tuple[str, ...] = ()
+
+    @property
+    def algorithm(self) -> str:
+        """The algorithm's name as tables give it (``TD3``)."""
+        return TITLES.get(self.algo, self.algo)
 
     @property
     def aided(self) -> bool:
@@ -78,7 +88,7 @@ class AgentInfo:
         if other:
             aids = ", ".join(other)
             return f"{self.preset} (learning aids without privileged knowledge: {aids}){gains}"
-        return f"{self.preset} (plain SAC, no learning aids){gains}"
+        return f"{self.preset} (plain {self.algorithm}, no learning aids){gains}"
 
 
 def _num(value: Any) -> float:
@@ -211,6 +221,8 @@ def agent_info(train_id: str, run: Run | None, cfg: Mapping[str, Any] | None) ->
     train = dict(cfg["train"]) if cfg and isinstance(cfg.get("train"), Mapping) else {}
     train = train or _from_params(params, "train.")
     preset = tags.get(AGENT_PRESET_TAG) or params.get("agent.name") or str(agent.get("name") or "?")
+    algo = tags.get(AGENT_ALGO_TAG) or str(agent.get("algo") or "sac")
+    left_out = tags.get(AGENT_LEFT_OUT_TAG, "none")
     spent = {}
     for key, names in SPENT_METRICS.items():
         for name in names:
@@ -219,11 +231,13 @@ def agent_info(train_id: str, run: Run | None, cfg: Mapping[str, Any] | None) ->
                 break
     return AgentInfo(
         train_run=train_id,
-        preset=preset,
+        preset=agent_label(preset, algo) or preset,
         aids=aids_of(agent, train),
         spent=spent,
         stop_reason=tags.get(STOP_REASON_TAG, ""),
         status=run.info.status,
+        algo=algo,
+        left_out=tuple(k for k in left_out.split(",") if k and left_out != "none"),
     )
 
 
@@ -237,7 +251,7 @@ def caption(infos: Sequence[AgentInfo], counts: Sequence[int] | None = None) -> 
         labels[info.label] = labels.get(info.label, 0) + (counts[i] if counts else 1)
     if not labels:
         return "Agent: unknown (no train run recorded)."
-    not_plain = any(i.aids for i in infos if i.known)
+    not_plain = any(i.aids or i.algo != "sac" for i in infos if i.known)
     trailer = " — not the paper's plain SAC" if not_plain else ""
     if len(labels) == 1:
         return f"Agent: {next(iter(labels))}{trailer}."

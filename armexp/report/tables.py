@@ -3,8 +3,8 @@ and CSV through `armexp.report.formatting.Table`.
 
 * Table I: environment parameters (from the train run's config),
 * Table II: agent parameters as used, beside the paper's (`armexp.paper`): the preset, its
-  learning aids (and whether any uses privileged knowledge), the budget configured and the
-  budget spent.
+  algorithm and learning aids (and whether any uses privileged knowledge), the algorithm's
+  settings, the budget configured and the budget spent.
 
 Table III is `armexp.report.performance`, the controller comparison and the ablation
 `armexp.report.comparison`, the claim check `armexp.report.claims`, the CSO gains and the tuning
@@ -20,6 +20,7 @@ from typing import Any
 import pandas as pd
 
 from armexp import paper
+from armexp.config.agent_schema import TITLES
 from armexp.report.agent import AgentInfo, aids_of, caption
 from armexp.report.formatting import Table, plain
 
@@ -55,17 +56,27 @@ def table_one(train_cfg: dict[str, Any]) -> Table:
 
 
 def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Table:
-    """Agent parameters as used, beside the paper's: the preset and its learning aids (whether
-    any uses privileged knowledge), the SAC settings, and the budget configured and spent.
+    """Agent parameters as used, beside the paper's: the preset, its algorithm and learning aids
+    (whether any uses privileged knowledge), the algorithm's settings (the shared ones it does not
+    read shown as "–"; its own after them), and the budget configured and spent.
 
     ``agents``: the selection's train runs (the first is the one whose config is ``train_cfg``);
     none: the aids are read from ``train_cfg`` and the budget spent is not known.
     """
     agent = train_cfg["agent"]
+    algo = str(agent.get("algo") or "sac")
     infos = list(agents) or [
-        AgentInfo("", str(agent.get("name", "?")), aids_of(agent, train_cfg.get("train") or {}))
-    ]
-    rows = _aid_rows(infos) + _setting_rows(train_cfg) + _spent_rows(infos)
+        AgentInfo(
+            "", str(agent.get("name", "?")), aids_of(agent, train_cfg.get("train") or {}),
+            algo=algo,
+        )
+    ]  # fmt: skip
+    rows = (
+        _aid_rows(infos)
+        + _setting_rows(train_cfg, set(infos[0].left_out))
+        + _own_rows(agent, algo)
+        + _spent_rows(infos)
+    )
     shown = pd.DataFrame(
         [(k, plain(v), plain(p)) for k, v, p in rows], columns=["Parameter", "Value", "Paper"]
     )
@@ -105,15 +116,21 @@ def _aid_rows(infos: Sequence[AgentInfo]) -> list[Row]:
     )
     return [
         ("Preset", ", ".join(dict.fromkeys(i.preset for i in infos)), "plain SAC"),
+        ("Algorithm", ", ".join(dict.fromkeys(i.algorithm for i in infos)), "SAC"),
         ("Learning aids", aids, "none"),
         ("Aided", aided, "no"),
     ]
 
 
-def _setting_rows(train_cfg: dict[str, Any]) -> list[Row]:
-    """The SAC and environment settings of the train run's config, the budget configured."""
+def _setting_rows(train_cfg: dict[str, Any], left_out: set[str]) -> list[Row]:
+    """The agent's shared and the environment's settings in the train run's config, the budget
+    configured; the shared settings its algorithm does not read (``left_out``) as "–"."""
     agent, env, robot = train_cfg["agent"], train_cfg["env"], train_cfg["robot"]
     printed = paper.TABLE_II
+    title = TITLES.get(str(agent.get("algo") or "sac"), "?")
+
+    def used(key: str, value: Any) -> Any:
+        return f"– (not {title}'s)" if key in left_out else value
 
     def bounds(values: Sequence[float]) -> str:
         return ", ".join(f"q̇{j + 1}: [−{b:g}, +{b:g}]" for j, b in enumerate(values))
@@ -126,6 +143,7 @@ def _setting_rows(train_cfg: dict[str, Any]) -> list[Row]:
         budget += f", ≤ {int(agent['max_env_steps']):,} env steps"
     if agent.get("max_minutes") is not None:
         budget += f", ≤ {float(agent['max_minutes']):g} min wall time"
+    updates = f"{plain(agent['gradient_steps'])} every {plain(agent['train_freq'])} step(s)"
     nets = "×".join(str(int(u)) for u in agent.get("net_arch", []))
     if agent.get("critic_arch"):
         nets = f"actor {nets}, critics " + "×".join(str(int(u)) for u in agent["critic_arch"])
@@ -135,20 +153,28 @@ def _setting_rows(train_cfg: dict[str, Any]) -> list[Row]:
             bounds(robot["velocity_bound"]),
             bounds(printed["velocity_bound"]),
         ),
-        ("Batch size", agent["batch_size"], printed["batch_size"]),
-        ("Target smoothing factor", agent["tau"], printed["tau"]),
-        ("Experience buffer length", agent["buffer_size"], printed["buffer_size"]),
-        ("Initial random steps", agent["learning_starts"], printed["learning_starts"]),
+        ("Batch size", used("batch_size", agent["batch_size"]), printed["batch_size"]),
+        ("Target smoothing factor", used("tau", agent["tau"]), printed["tau"]),
+        (
+            "Experience buffer length",
+            used("buffer_size", agent["buffer_size"]),
+            printed["buffer_size"],
+        ),
+        (
+            "Initial random steps",
+            used("learning_starts", agent["learning_starts"]),
+            printed["learning_starts"],
+        ),
         ("Discount factor", agent["gamma"], printed["gamma"]),
         ("Time step (s)", env["action_period"], printed["action_period"]),
         ("Max time steps/episode", env["max_steps"], printed["max_steps"]),
         ("Learning rate", lr, printed["learning_rate"]),
-        ("n-step returns", agent.get("n_steps", 1), "–"),
+        ("n-step returns", used("n_steps", agent.get("n_steps", 1)), "–"),
         ("Hidden layers", nets or "–", "–"),
         ("Parallel environments", agent.get("n_envs", 1), "–"),
         (
             "Gradient steps per update",
-            f"{plain(agent['gradient_steps'])} every {plain(agent['train_freq'])} step(s)",
+            used("gradient_steps", updates),
             "–",
         ),
         ("Gradients", agent.get("gradients", "autograd"), "–"),
@@ -158,6 +184,19 @@ def _setting_rows(train_cfg: dict[str, Any]) -> list[Row]:
             f"{printed['episodes']} episodes of ≤ {printed['max_steps']} steps",
         ),
     ]
+
+
+def _own_rows(agent: dict[str, Any], algo: str) -> list[Row]:
+    """The options only ``algo`` has (its ``agent.<algo>`` section), and the entropy
+    coefficient where the algorithm has one."""
+    title = TITLES.get(algo, algo)
+    rows: list[Row] = []
+    if algo in ("sac", "tqc", "crossq"):
+        rows.append(("Entropy coefficient", agent.get("ent_coef", "auto"), "–"))
+    own = agent.get(algo)
+    if isinstance(own, dict):
+        rows += [(f"{title}: {key}", value, "–") for key, value in own.items()]
+    return rows
 
 
 def _spent(

@@ -32,7 +32,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from armexp import run_names, tracking
 from armexp.agents.callbacks import MODEL_DIR, MODEL_FILE
-from armexp.agents.sac import load_sac
+from armexp.agents.factory import load_agent
 from armexp.baselines import (
     ABLATION,
     ADAPTIVE,
@@ -145,10 +145,11 @@ def load_policy(cfg: DictConfig, section: str) -> Policy:
         own = _trained_gains(cfg, train_run, trained_with, values)
         if own.tune_run:
             tags[TUNE_RUN_TAG] = own.tune_run
-    if train_run.data.tags.get(run_names.AGENT_PRESET_TAG):  # the run is named after the policy
-        tags[run_names.AGENT_PRESET_TAG] = train_run.data.tags[run_names.AGENT_PRESET_TAG]
+    for tag in (run_names.AGENT_PRESET_TAG, run_names.AGENT_ALGO_TAG):  # named after the policy
+        if train_run.data.tags.get(tag):
+            tags[tag] = train_run.data.tags[tag]
     model_path = _policy_artifact(cfg, section, train_id, f"{MODEL_DIR}/{MODEL_FILE}")
-    model = load_sac(str(model_path), None, train_cfg.agent)
+    model = load_agent(str(model_path), None, train_cfg.agent)
     entry = Entry(own_label(trained_with), PROPOSED, own)
     return Policy(train_id, train_cfg, model, entry, tags)
 

@@ -1,4 +1,5 @@
-"""`armexp train`: SAC (Algorithm 1) plans joint velocities with the tuned controller in the loop.
+"""`armexp train`: the agent of ``agent.algo`` (SAC, Algorithm 1, by default) plans joint
+velocities with the tuned controller in the loop.
 
 Gains come from a tune run (``train.tune_run`` or the latest FINISHED tune run for the same
 controller and robot under ``tuner.objective.criterion``; its id is tagged ``armexp.tune_run``)
@@ -47,13 +48,15 @@ from armexp.agents.callbacks import (
     Progress,
     log_model,
 )
-from armexp.agents.sac import ResumableSAC, build_sac, load_sac
+from armexp.agents.factory import build_agent, load_agent, mark_resumed, usage
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.gains import resolve
 from armexp.reads import Reads
 from armexp.tags import (
+    AGENT_ALGO_TAG,
+    AGENT_LEFT_OUT_TAG,
     AGENT_PRESET_TAG,
     GAINS_SOURCE_TAG,
     RESUMED_TAG,
@@ -116,10 +119,12 @@ def run(composed: DictConfig, addons: Sequence[TrainingAddOn] = ()) -> tracking.
     if cfg.train.resume:
         return resume(composed)
     # A bad add-on stops here, before a run exists.
-    build_addons(cfg.agent.aids)
-    build_addons(cfg.train.callbacks, "train.callbacks")
+    algo = str(cfg.agent.algo)
+    build_addons(cfg.agent.aids, algo=algo)
+    build_addons(cfg.train.callbacks, "train.callbacks", algo)
     gains, tags = controller_gains_for(cfg)
     tags[AGENT_PRESET_TAG] = _agent_preset(cfg)
+    tags.update(_algo_tags(cfg.agent, tags[AGENT_PRESET_TAG]))
     with tracking.stage_run(
         composed, "train", run_name=cfg.train.run_name, extra_tags=tags, reads=READS
     ) as active:
@@ -237,6 +242,18 @@ def _named(key: str, differing: list[str]) -> str:
     return ", ".join((inside or differing)[:3])
 
 
+def _algo_tags(agent: DictConfig, preset: str) -> dict[str, str]:
+    """The run's algorithm and, said on one line too, the preset's options that it maps to
+    another meaning or leaves out (`armexp.agents.factory.usage`)."""
+    used = usage(agent)
+    tags = {AGENT_ALGO_TAG: used.algo}
+    line = used.line(preset)
+    if line:
+        print(f"train: {line}")
+        tags[AGENT_LEFT_OUT_TAG] = ",".join(used.left_out) or "none"
+    return tags
+
+
 def _gains_from(tags: dict[str, str]) -> str:
     """Where the controller's gains came from, for the summary line."""
     if tags.get(GAINS_SOURCE_TAG) == "config":
@@ -254,19 +271,22 @@ def _learn(
     extra: Sequence[TrainingAddOn] = (),
 ) -> dict[str, float]:
     agent, tr = cfg.agent, cfg.train
-    addons = [*build_addons(agent.aids), *build_addons(tr.callbacks, "train.callbacks"), *extra]
+    algo = str(agent.algo)
+    addons = [
+        *build_addons(agent.aids, algo=algo),
+        *build_addons(tr.callbacks, "train.callbacks", algo),
+        *extra,
+    ]
     if tr.torch_threads:
         torch.set_num_threads(int(tr.torch_threads))
     settings = settings_from_config(cfg, gains=gains, with_tasks=False)
     venv = make_vec_env(settings, int(agent.n_envs), str(agent.vec_env), int(cfg.seed))
-    model: ResumableSAC
     if model_path is None:
-        model = build_sac(agent, venv, int(cfg.seed))
+        model = build_agent(agent, venv, int(cfg.seed))
     else:
-        model = load_sac(model_path, venv, agent)
-        model.resumed = True
-        # Refill the empty replay buffer with the policy before updates resume.
-        model.learning_starts = model.num_timesteps + int(agent.learning_starts)
+        model = load_agent(model_path, venv, agent)
+        # Refill an empty replay buffer with the policy before updates resume.
+        mark_resumed(model, int(agent.learning_starts))
     model.set_logger(Logger(folder=None, output_formats=[MLflowOutputFormat(run_id)]))
     done_steps = int(state.get("num_timesteps", 0))
     total = step_budget(cfg)
