@@ -74,11 +74,17 @@ def fixed_overrides(overrides: Sequence[str]) -> list[str]:
 
 
 def open_sweep(
-    stage: str, overrides: Sequence[str], search_path: Sequence[str] = ()
+    stage: str,
+    overrides: Sequence[str],
+    search_path: Sequence[str] = (),
+    reopen: str | None = None,
+    tags: dict[str, str] | None = None,
+    run_name: str | None = None,
 ) -> tuple[Any, str, Any]:
     """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
-    reaches every job as ``tracking.sweep_run``. (MLflow is imported here, not before: the
-    checks before a sweep do not need it.)"""
+    reaches every job as ``tracking.sweep_run``. ``reopen``: a stopped sweep run to continue
+    instead (an Optuna sweep resuming its study); ``tags`` and ``run_name``: its own. (MLflow
+    is imported here, not before: the checks before a sweep do not need it.)"""
     from mlflow.tracking import MlflowClient
 
     from armexp.config import compose_config
@@ -87,21 +93,27 @@ def open_sweep(
     cfg = compose_config([*search_path, *fixed_overrides(overrides)])
     experiment_id = stage_runs.setup(cfg)
     client = MlflowClient(store.store_uri(cfg))
-    run = store.retry(
-        lambda: client.create_run(
-            experiment_id,
-            run_name=f"sweep-{stage}",
-            tags={
-                STAGE_TAG: "sweep",
-                SWEEP_STAGE_TAG: stage,
-                HEARTBEAT_TAG: f"{time.time():.0f}",
-                PROCESS_TAG: liveness.process_identity(),
-            },
-        )
-    )
-    sweep_id = run.info.run_id
-    client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
-    print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
+    own = {
+        STAGE_TAG: "sweep",
+        SWEEP_STAGE_TAG: stage,
+        HEARTBEAT_TAG: f"{time.time():.0f}",
+        PROCESS_TAG: liveness.process_identity(),
+        **(tags or {}),
+    }
+    if reopen:
+        sweep_id = reopen
+        store.retry(lambda: client.update_run(reopen, status="RUNNING"))
+        for key, value in own.items():
+            store.retry(lambda k=key, v=value: client.set_tag(reopen, k, v))  # type: ignore[misc]
+        if ERROR_TAG in client.get_run(reopen).data.tags:
+            store.retry(lambda: client.delete_tag(reopen, ERROR_TAG))
+        print(f"armexp {stage}: sweep run {sweep_id} continues with the jobs of this multirun")
+    else:
+        name = run_name or f"sweep-{stage}"
+        run = store.retry(lambda: client.create_run(experiment_id, run_name=name, tags=own))
+        sweep_id = run.info.run_id
+        client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
+        print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
     return client, sweep_id, liveness.Heartbeat(sweep_id, store.store_uri(cfg))
 
 
