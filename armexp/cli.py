@@ -40,6 +40,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "report": ("armexp.stages.report", "Tables I-III and Figures 3-6 from stored runs"),
     "pipeline": ("armexp.stages.study", "tune -> train -> eval -> report under one parent run"),
     "ui": ("armexp.stages.ui", "open the MLflow UI on the configured store"),
+    "hpo": ("armexp.stages.hpo", "hyperparameter search of the agent (Optuna, pruned trials)"),
 }
 
 # The Hydra flags whose meaning armexp acts on (long and short spellings, as `--hydra-help`
@@ -78,6 +79,7 @@ def usage() -> str:
         "  armexp train controller.gains=paper     # the paper's gains, no tune run needed",
         "  armexp eval tasks.n_random=100",
         "  armexp play play.targets=[[1.2,0.5]]  # GIF and MP4 of each episode",
+        "  armexp hpo hpo=plain_sac               # Optuna search, resumed by the same command",
         "  armexp diff <run id> <run id>         # config, metrics, code and versions",
         "Outputs: MLflow store runs/mlflow.db (view with `armexp ui`).",
     ]
@@ -194,6 +196,10 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     try:
         line = split_args([expand_home(a) for a in args])
         overrides = _without_credentials(imply_gains_source(stage, line.overrides))
+        if stage == "hpo" and not line.multirun:
+            from armexp.hpo.space import as_params
+
+            overrides = as_params(overrides)
         if not line.runs_no_job:
             overrides = precheck(
                 stage, overrides, line.multirun, _search_path(line), not line.shows_config
@@ -202,6 +208,12 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
                 from armexp.launchers import check_launcher
 
                 check_launcher(overrides)
+        plan = None
+        if line.multirun and not line.runs_no_job and not line.shows_config:
+            from armexp.hpo import sweep as optuna_sweep
+
+            if optuna_sweep.chosen(overrides):
+                plan = optuna_sweep.prepare(stage, overrides, _search_path(line))
     except ConfigError as exc:
         print(f"armexp {stage}: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -246,13 +258,19 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
     # validated against it, which is what they are written for; Hydra warns about the match.
     warnings.filterwarnings("ignore", message=r"(?s).*validated against ConfigStore schema")
     runs_jobs = line.multirun and not line.runs_no_job and not line.shows_config
-    sweep = sweeps.open_sweep(stage, overrides, _search_path(line)) if runs_jobs else None
+    sweep = (
+        sweeps.open_sweep(stage, overrides, _search_path(line), *_hpo_run(plan))
+        if runs_jobs
+        else None
+    )
     # `hydra.main` reads its command line from sys.argv only (it has no parameter for one), and
     # its parser wants the overrides as one block after the flags. The sweep run's id goes
     # through the config, so jobs on other processes or machines (joblib, SLURM, Ray) see it.
     sweep_overrides = (
         [f"tracking.sweep_run={sweep[1]}", _swept_override(overrides)] if sweep else []
     )
+    if plan is not None:  # the Optuna sweeper's study, as the checks before the sweep found it
+        sweep_overrides += plan.overrides()
     sys.argv = [
         f"armexp {stage}",
         *line.flags,
@@ -287,6 +305,11 @@ def run_stage(stage: str, args: Sequence[str]) -> int:
             restore()
             remote.reset()
     return 0
+
+
+def _hpo_run(plan: Any) -> tuple[str | None, dict[str, str] | None, str | None]:
+    """The HPO run an Optuna sweep reopens (None: a new one), its tags and its name."""
+    return (None, None, None) if plan is None else (plan.hpo_run, plan.tags, plan.name)
 
 
 def _close_sweep(stage: str, sweep: Any, status: str) -> None:

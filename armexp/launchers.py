@@ -67,8 +67,8 @@ def check_launcher(overrides: Sequence[str]) -> None:
 
 
 def register_plugins() -> None:
-    """Register armexp's Ray launcher with Hydra by its class, before Hydra instantiates a
-    launcher.
+    """Register armexp's Ray launcher and Optuna sweeper with Hydra by their classes, before
+    Hydra instantiates a launcher or sweeper.
 
     Hydra finds plugins by listing the folders of the ``hydra_plugins`` namespace package
     (``pkgutil.walk_packages``). In an editable install (``pip install -e``, the README's)
@@ -84,8 +84,10 @@ def register_plugins() -> None:
     # the one the scan left (one entry per launcher in Hydra's list).
     plugins = Plugins.instance()
     from hydra_plugins.armexp_launcher.ray_launcher import RayLauncher
+    from hydra_plugins.armexp_sweeper.optuna_sweeper import OptunaSweeper
 
     plugins.register(RayLauncher)
+    plugins.register(OptunaSweeper)
 
 
 def _hydra_overrides(overrides: Sequence[str]) -> list[str]:

@@ -36,6 +36,7 @@ TABLE_II_OPEN: dict[str, Any] = {
     "critic_arch": None,
     "gradients": "autograd",
     "ent_coef": "auto",
+    "target_entropy": None,
 }
 #: Table III (the proposed control), per task: target time s, target error "cm", tracking error
 #: "cm", max torque N·m, "optimization time" s.

@@ -4,7 +4,7 @@ exit code 2 (`ConfigError`), with no MLflow run, no sweep run and no Hydra folde
 * Hydra's launcher settings (`armexp.launchers.check_settings`);
 * every job's config, composed and validated for the stage (`armexp.config.jobs.JobComposer`:
   Hydra composes once per distinct choice of config groups, so a 200-job sweep is checked in
-  seconds);
+  seconds), and for `armexp hpo` its search (`armexp.hpo.checks`);
 * for a command that runs a job (not ``--cfg job``): what the run would allocate against the
   memory available (`armexp.resources`), the runs folder (writable, room to start), and each run
   id of the config, which may be a prefix of one (`armexp.run_ids`): the overrides come back
@@ -53,9 +53,13 @@ def precheck(
     cfg = None
     for job in jobs:
         cfg = composer.compose(job)
+        if stage == "hpo":
+            from armexp.hpo.checks import check_hpo
+
+            check_hpo(cfg, job, search_path)
         if runs_job:
             resources.check(cfg, stage, job)
-            if stage in ("train", "pipeline") and OmegaConf.select(cfg, "agent.device"):
+            if stage in ("train", "pipeline", "hpo") and OmegaConf.select(cfg, "agent.device"):
                 resources.device_here(str(cfg.agent.device))
             prefixes.update(_prefixes(cfg, prefixes))
     if not runs_job or cfg is None:

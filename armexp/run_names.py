@@ -80,5 +80,17 @@ def _swept(cfg: DictConfig, stage: str) -> list[str]:
     for override in HydraConfig.get().overrides.task:
         key = override.partition("=")[0].lstrip("+~")
         if key in keys and key not in shown:
-            out.append(override)
+            out.append(_short(override))
     return out
+
+
+def _short(override: str) -> str:
+    """``key=value`` with a float value in four significant digits (an optimising sweep's
+    values come with seventeen)."""
+    key, _, value = override.partition("=")
+    if not any(c in value for c in ".eE"):
+        return override
+    try:
+        return f"{key}={float(value):.4g}"
+    except ValueError:
+        return override

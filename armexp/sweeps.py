@@ -66,11 +66,17 @@ def fixed_overrides(overrides: Sequence[str]) -> list[str]:
 
 
 def open_sweep(
-    stage: str, overrides: Sequence[str], search_path: Sequence[str] = ()
+    stage: str,
+    overrides: Sequence[str],
+    search_path: Sequence[str] = (),
+    reopen: str | None = None,
+    tags: dict[str, str] | None = None,
+    run_name: str | None = None,
 ) -> tuple[Any, str, Any]:
     """A parent run that groups the jobs of ``armexp <stage> -m …`` in the MLflow UI; its id
-    reaches every job as ``tracking.sweep_run``. (MLflow is imported here, not before: the
-    checks before a sweep do not need it.)"""
+    reaches every job as ``tracking.sweep_run``. ``reopen``: a stopped sweep run to continue
+    instead (an Optuna sweep resuming its study); ``tags`` and ``run_name``: its own. (MLflow
+    is imported here, not before: the checks before a sweep do not need it.)"""
     from mlflow.tracking import MlflowClient
 
     from armexp import liveness, tracking
@@ -79,21 +85,27 @@ def open_sweep(
     cfg = compose_config([*search_path, *fixed_overrides(overrides)])
     experiment_id = tracking.setup(cfg)
     client = MlflowClient(tracking.store_uri(cfg))
-    run = tracking.retry(
-        lambda: client.create_run(
-            experiment_id,
-            run_name=f"sweep-{stage}",
-            tags={
-                tracking.STAGE_TAG: "sweep",
-                SWEEP_STAGE_TAG: stage,
-                liveness.HEARTBEAT_TAG: f"{time.time():.0f}",
-                liveness.PROCESS_TAG: liveness.process_identity(),
-            },
-        )
-    )
-    sweep_id = run.info.run_id
-    client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
-    print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
+    own = {
+        tracking.STAGE_TAG: "sweep",
+        SWEEP_STAGE_TAG: stage,
+        liveness.HEARTBEAT_TAG: f"{time.time():.0f}",
+        liveness.PROCESS_TAG: liveness.process_identity(),
+        **(tags or {}),
+    }
+    if reopen:
+        sweep_id = reopen
+        tracking.retry(lambda: client.update_run(reopen, status="RUNNING"))
+        for key, value in own.items():
+            tracking.retry(lambda k=key, v=value: client.set_tag(reopen, k, v))  # type: ignore[misc]
+        if tracking.ERROR_TAG in client.get_run(reopen).data.tags:
+            tracking.retry(lambda: client.delete_tag(reopen, tracking.ERROR_TAG))
+        print(f"armexp {stage}: sweep run {sweep_id} continues with the jobs of this multirun")
+    else:
+        name = run_name or f"sweep-{stage}"
+        run = tracking.retry(lambda: client.create_run(experiment_id, run_name=name, tags=own))
+        sweep_id = run.info.run_id
+        client.log_param(sweep_id, "overrides", " ".join(overrides)[:6000])
+        print(f"armexp {stage}: sweep run {sweep_id} groups the jobs of this multirun")
     return client, sweep_id, liveness.Heartbeat(sweep_id, tracking.store_uri(cfg))
 
 

@@ -4,7 +4,8 @@ of MLflow's own that armexp reads). Modules import the name; no other module spe
 from __future__ import annotations
 
 # ------------------------------------------------------------------ every run
-#: The stage that made a run (simulate, tune, train, eval, play, report, pipeline, sweep).
+#: The stage that made a run (simulate, tune, train, eval, play, report, pipeline, sweep, hpo,
+#: trial).
 STAGE_TAG = "armexp.stage"
 #: MLflow's own: the parent run of a nested run.
 PARENT_TAG = "mlflow.parentRunId"
@@ -70,3 +71,14 @@ STUDY_TAG = "armexp.study"
 FAILED_SEEDS_TAG = "armexp.failed_seeds"
 #: The eval runs a report read.
 REPORT_RUNS_TAG = "armexp.report_runs"
+
+# ------------------------------------------------------------------ hyperparameter search
+#: An HPO run (stage ``hpo``: `armexp hpo` or a train sweep under ``hydra/sweeper=optuna``):
+#: its Optuna study's name and storage (password hidden), and whether its trials prune.
+HPO_STUDY_TAG = "armexp.hpo.study"
+HPO_STORAGE_TAG = "armexp.hpo.storage"
+HPO_PRUNER_TAG = "armexp.hpo.pruner"
+#: A trial run (stage ``trial``, a child of its HPO run): its number in the study and how it
+#: ended (COMPLETE, PRUNED, FAIL).
+TRIAL_NUMBER_TAG = "armexp.hpo.trial"
+TRIAL_STATE_TAG = "armexp.hpo.state"

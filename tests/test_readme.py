@@ -27,6 +27,12 @@ TINY = {
     "train": TRAIN,
     "eval": ["eval.animations=false"],
     "report": [],
+    "hpo": [
+        "agent.max_env_steps=200",
+        "train.eval_every=100",
+        "train.eval_targets=2",
+        "env.max_steps=50",
+    ],
     "pipeline": [
         *TUNE,
         *TRAIN,

@@ -163,10 +163,13 @@ def test_train_with_paper_gains_needs_no_tune_run(runs_dir: Path) -> None:
     (run,) = _runs(runs_dir, "train")
     assert run.data.tags["armexp.gains_source"] == "config"
     assert "armexp.tune_run" not in run.data.tags
-    # Held-out checks while training: at steps 60 and 120 (2 environments: 2 steps per call).
+    # Held-out checks while training: at steps 60 and 120 (2 environments: 2 steps per call),
+    # and at the end of the budget, whose check is the run's final/held_out_success.
     held_out = _client(runs_dir).get_metric_history(run.info.run_id, "eval/success_rate")
-    assert sorted(m.step for m in held_out) == [60, 120]
+    assert sorted(m.step for m in held_out) == [60, 120, 150]
     assert all(0.0 <= m.value <= 1.0 for m in held_out)
+    last = max(held_out, key=lambda m: m.step).value
+    assert run.data.metrics["final/held_out_success"] == last
 
 
 def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(

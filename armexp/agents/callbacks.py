@@ -258,10 +258,11 @@ class Budget(BaseCallback):
 
 
 class HeldOutEval(BaseCallback):
-    """Every ``every`` environment steps, the deterministic policy on fixed held-out targets:
-    logs ``eval/success_rate``, ``eval/collision_rate`` and ``eval/mean_return`` against the
-    step, with ``eval/wall_s`` the training wall time so far. The time spent here is taken off
-    the training clock, so a wall-time budget counts training only."""
+    """Every ``every`` environment steps, and once more at the end of training when the last
+    check came before it, the deterministic policy on fixed held-out targets: logs
+    ``eval/success_rate``, ``eval/collision_rate`` and ``eval/mean_return`` against the step,
+    with ``eval/wall_s`` the training wall time so far. The time spent here is taken off the
+    training clock, so a wall-time budget counts training only."""
 
     def __init__(
         self, run_id: str, every: int, env: Any, targets: list[np.ndarray], stats: EpisodeStats
@@ -280,6 +281,11 @@ class HeldOutEval(BaseCallback):
         if self.num_timesteps - self._last >= self.every:
             self.evaluate()
         return True
+
+    def _on_training_end(self) -> None:
+        # The policy as trained is what a budget buys: an HPO trial is scored on this check.
+        if self.num_timesteps > self._last:
+            self.evaluate()
 
     def evaluate(self) -> dict[str, float]:
         from armexp.agents.rollout import rollout
@@ -308,7 +314,11 @@ class HeldOutEval(BaseCallback):
 class HeldOutChecks(TrainingAddOn):
     """The `HeldOutEval` callback as a ``train.callbacks`` entry: every ``every`` environment
     steps (0: never) the deterministic policy on ``targets`` workspace targets drawn with
-    ``seed`` (apart from `armexp eval`'s ``tasks.random_seed``)."""
+    ``seed`` (apart from `armexp eval`'s ``tasks.random_seed``). The callback is shared with
+    later add-ons as ``ctx.shared[SHARED]`` (an HPO trial's pruning reads its checks); the last
+    check's success rate is the run's ``final/held_out_success``."""
+
+    SHARED = "held_out"
 
     def __init__(self, every: int, targets: int = 50, seed: int = 10_007) -> None:
         if int(every) < 0 or int(targets) < 1:
@@ -323,4 +333,12 @@ class HeldOutChecks(TrainingAddOn):
         probe = ReachEnv(ctx.settings)
         rng = np.random.default_rng(self.seed)
         targets = [probe.workspace.sample(rng) for _ in range(self.targets)]
-        return [HeldOutEval(ctx.run_id, self.every, probe, targets, ctx.stats)]
+        check = HeldOutEval(ctx.run_id, self.every, probe, targets, ctx.stats)
+        ctx.shared[self.SHARED] = check
+        return [check]
+
+    def finish(self, ctx: TrainingContext) -> dict[str, float]:
+        check = ctx.shared.get(self.SHARED)
+        if not isinstance(check, HeldOutEval) or not check.history:
+            return {}
+        return {"final/held_out_success": check.history[-1]["eval/success_rate"]}

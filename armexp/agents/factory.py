@@ -30,7 +30,7 @@ from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.algorithms import ResumableCrossQ, ResumableTD3, ResumableTQC, ResumeRefill
-from armexp.agents.sac import ResumableSAC, build_sac, load_sac, sac_kwargs
+from armexp.agents.sac import ResumableSAC, build_sac, load_sac, sac_kwargs, target_entropy
 from armexp.config.agent_schema import ALGORITHMS, TITLES
 from armexp.resources import device_here
 
@@ -120,6 +120,7 @@ def _tqc(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
     return {
         **_off_policy(agent),
         "ent_coef": agent.ent_coef,
+        "target_entropy": target_entropy(agent),
         "top_quantiles_to_drop_per_net": int(own.top_quantiles_to_drop_per_net),
         "policy_kwargs": {
             "net_arch": _arch(agent, "qf"),
@@ -134,6 +135,7 @@ def _crossq(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
     return {
         **_off_policy(agent, tau=False),
         "ent_coef": agent.ent_coef,
+        "target_entropy": target_entropy(agent),
         "policy_delay": int(own.policy_delay),
         "policy_kwargs": {
             "net_arch": _arch(agent, "qf"),

@@ -159,10 +159,18 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
         "train_freq": int(agent.train_freq),
         "gradient_steps": int(agent.gradient_steps),
         "ent_coef": agent.ent_coef,
+        "target_entropy": target_entropy(agent),
         "n_steps": int(agent.n_steps),
         "policy_kwargs": {"net_arch": arch, "optimizer_kwargs": _adam(agent)},
         "device": device_here(str(agent.device)),
     }
+
+
+def target_entropy(agent: DictConfig) -> str | float:
+    """``agent.target_entropy`` as the libraries take it ("auto" when null; a stored run from
+    before the key: "auto")."""
+    value = agent.get("target_entropy")
+    return "auto" if value is None else float(value)
 
 
 def _without_argument_checks() -> None:

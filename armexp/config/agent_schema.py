@@ -117,6 +117,9 @@ class AgentConfig:
             "'auto', 'auto_<initial value>' or a number ≥ 0 (SB3's ent_coef)",
         ),
     )
+    #: The entropy target of SAC, TQC and CrossQ (their target_entropy; TD3 and PPO have none);
+    #: null: the libraries' "auto", −(action dimensions).
+    target_entropy: float | None = None
     #: n-step returns for the critic targets (SB3's n_steps; 1 = plain SAC).
     n_steps: int = checked(1, at_least(1))
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))

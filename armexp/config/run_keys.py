@@ -13,7 +13,7 @@ import re
 SINGLE = ("train.tune_run", "train.resume", "eval.train_run", "play.train_run",
           "report.pipeline_run", "tracking.sweep_run")  # fmt: skip
 #: Keys whose value is a list of run ids.
-LISTS = ("report.eval_runs",)
+LISTS = ("report.eval_runs", "report.hpo_runs")
 #: Keys whose value maps labels to run ids (``eval.tune_runs.pid_itae=<id>``).
 MAPS = ("eval.tune_runs", "play.tune_runs")
 KEYS = (*SINGLE, *LISTS, *MAPS)

@@ -27,6 +27,7 @@ from armexp.config.checks import (
 )
 from armexp.config.stage_schema import (
     EvalStageConfig,
+    HpoStageConfig,
     PipelineStageConfig,
     PlayStageConfig,
     ReportStageConfig,
@@ -298,6 +299,7 @@ class ArmexpConfig:
     report: ReportStageConfig = field(default_factory=ReportStageConfig)
     pipeline: PipelineStageConfig = field(default_factory=PipelineStageConfig)
     ui: UiStageConfig = field(default_factory=UiStageConfig)
+    hpo: HpoStageConfig = field(default_factory=HpoStageConfig)
 
 
 SCHEMAS: dict[str, type] = {

@@ -22,6 +22,7 @@ from armexp.config.checks import (
     or_null,
     positive,
 )
+from armexp.hpo.names import PRUNER_NAMES, SAMPLER_NAMES
 
 _pos = positive()
 
@@ -180,6 +181,9 @@ class ReportStageConfig:
     filter: str | None = None
     #: Experiment to read (None: ``tracking.experiment``).
     experiment: str | None = None
+    #: HPO runs (`armexp hpo`, ``hydra/sweeper=optuna``) whose best trials, objective and
+    #: parameter importances the report adds; with no eval runs to read, a report of these alone.
+    hpo_runs: list[str] = field(default_factory=list)
     fig6_task: str = checked("a", one_of("a", "b", "c", "d"))
     #: The seeds the selection should hold (a study sets them): those without a FINISHED eval
     #: run are named as missing in the report.
@@ -220,3 +224,42 @@ class PipelineStageConfig:
     paper_gains_row: bool = False
     #: In a study, more agents beside ``agent``, each with its own seeds and budget.
     agents: list[StudyAgent] = field(default_factory=list)
+
+
+@dataclass
+class HpoSamplerConfig:
+    """Optuna's sampler (`armexp.hpo.study.SAMPLERS`; cmaes needs the cmaes package)."""
+
+    name: str = checked("tpe", one_of(*SAMPLER_NAMES))
+    seed: int | None = checked(None, or_null(at_least(0)))
+
+
+@dataclass
+class HpoPrunerConfig:
+    """Optuna's pruner, fed by the held-out checks: ``median`` (MedianPruner: after
+    ``n_startup_trials`` trials and ``n_warmup_steps`` steps), ``hyperband`` (HyperbandPruner,
+    ``reduction_factor``) or ``none``."""
+
+    name: str = checked("median", one_of(*PRUNER_NAMES))
+    n_startup_trials: int = checked(5, at_least(0))
+    n_warmup_steps: int = checked(0, at_least(0))
+    reduction_factor: int = checked(3, at_least(2))
+
+
+@dataclass
+class HpoStageConfig:
+    """`armexp hpo` (docs/hpo.md); ``seeds`` also serve ``hydra/sweeper=optuna``."""
+
+    run_name: str | None = None
+    #: null: derived from what the trials depend on, so the same command resumes the study.
+    study_name: str | None = None
+    #: An Optuna database URL; null: optuna.db beside the MLflow store (`armexp.hpo.study`).
+    storage: str | None = None
+    #: The trials the study holds when the command ends (finished, pruned or failed).
+    n_trials: int = checked(20, at_least(1))
+    #: Each trial trains these seeds; its value is the IQM of their final held-out success.
+    seeds: list[int] = checked(factory=lambda: [0, 1], check=each(at_least(0)))
+    sampler: HpoSamplerConfig = field(default_factory=HpoSamplerConfig)
+    pruner: HpoPrunerConfig = field(default_factory=HpoPrunerConfig)
+    #: The search space: config key -> Hydra sweep (``interval(…)``, ``choice(…)``, ``range(…)``).
+    params: dict[str, Any] = field(default_factory=dict)

@@ -17,6 +17,7 @@ from armexp.report import (
     figures,
     formatting,
     gather,
+    hpo,
     index,
     labels,
     performance,
@@ -56,6 +57,7 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
         figures.save(fig, folder / "figures", name)
         pictures.append((name, caption))
 
+    made += hpo.section(reader, [str(r) for r in cfg.report.hpo_runs], folder, save)
     runs_frame = gather.runs_table(selection, agents)
     runs_frame.to_csv(folder / "runs.csv", index=False)
     shown = _figure_run(selection, run_labels)

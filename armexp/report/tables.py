@@ -130,7 +130,8 @@ _PRINTED = {"batch_size": "batch size", "tau": "tau", "buffer_size": "buffer",
 #: What Table II leaves open (`armexp.paper.TABLE_II_OPEN`), by the same names.
 _OPEN = {"n_envs": "parallel environments", "n_steps": "n-step returns",
          "net_arch": "hidden layers", "critic_arch": "critic layers",
-         "gradients": "gradients", "ent_coef": "entropy coefficient"}  # fmt: skip
+         "gradients": "gradients", "ent_coef": "entropy coefficient",
+         "target_entropy": "entropy target"}  # fmt: skip
 
 
 def changes(train_cfg: dict[str, Any], info: AgentInfo) -> str:

@@ -19,7 +19,8 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
 from armexp import tracking
-from armexp.report import folder
+from armexp.config import ConfigError
+from armexp.report import figures, folder, hpo
 from armexp.report.folder import MARKER
 from armexp.report.page import build
 from armexp.report.runs import Reader, select
@@ -36,14 +37,19 @@ def out_dir(cfg: DictConfig) -> Path:
 def run(cfg: DictConfig) -> tracking.StageResult:
     uri = tracking.store_uri(cfg)
     client = MlflowClient(uri)
-    selection = select(
-        client,
-        str(cfg.report.experiment or cfg.tracking.experiment),
-        pipeline_run=cfg.report.pipeline_run,
-        eval_runs=[str(r) for r in cfg.report.eval_runs],
-        filter_string=cfg.report.filter,
-        store=tracking.store.hide_password(uri),
-    )
+    try:
+        selection = select(
+            client,
+            str(cfg.report.experiment or cfg.tracking.experiment),
+            pipeline_run=cfg.report.pipeline_run,
+            eval_runs=[str(r) for r in cfg.report.eval_runs],
+            filter_string=cfg.report.filter,
+            store=tracking.store.hide_password(uri),
+        )
+    except ConfigError:
+        if not cfg.report.hpo_runs or cfg.report.eval_runs or cfg.report.pipeline_run:
+            raise
+        return _hpo_only(cfg, uri)
     target = out_dir(cfg)
     folder.check(target)
     # Built beside the target and swapped in when complete: an interrupted or failed report
@@ -67,3 +73,34 @@ def run(cfg: DictConfig) -> tracking.StageResult:
             f"({selection.how}) | open {target / 'index.html'}"
         )
     return tracking.StageResult(active.info.run_id, summary)
+
+
+def _hpo_only(cfg: DictConfig, uri: str) -> tracking.StageResult:
+    """A report of ``report.hpo_runs`` alone, when there are no eval runs to read."""
+    target = out_dir(cfg)
+    folder.check(target)
+    reader = Reader(uri)
+    pictures: list[tuple[str, str]] = []
+    try:
+        with folder.building(target) as new:
+            (new / "figures").mkdir()
+            (new / "tables").mkdir()
+
+            def save(fig: object, name: str, caption: str) -> None:
+                figures.save(fig, new / "figures", name)
+                pictures.append((name, caption))
+
+            made = hpo.section(reader, [str(r) for r in cfg.report.hpo_runs], new, save)
+            hpo.page(new, made, pictures)
+    finally:
+        reader.close()
+    ids = ",".join(str(r) for r in cfg.report.hpo_runs)
+    with tracking.stage_run(
+        cfg, "report", run_name=cfg.report.run_name, extra_tags={REPORT_RUNS_TAG: ids[:5000]}
+    ) as active:
+        tracking.log_folder(target, "report")
+        print(
+            f"report: run {active.info.run_id} | {len(cfg.report.hpo_runs)} HPO run(s), no eval "
+            f"runs | open {target / 'index.html'}"
+        )
+    return tracking.StageResult(active.info.run_id, {})

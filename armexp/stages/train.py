@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import mlflow
@@ -33,7 +34,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
 from armexp import console, disk, liveness, remote, run_end, tracking
-from armexp.agents.addons import TrainingContext, build_addons
+from armexp.agents.addons import TrainingAddOn, TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
     MODEL_DIR,
@@ -119,8 +120,9 @@ def step_budget(cfg: DictConfig) -> int:
     return bound if cap is None else min(bound, int(cap))
 
 
-def run(composed: DictConfig) -> tracking.StageResult:
-    """Train on `READS`' view of the composed config; the run logs the composed config whole."""
+def run(composed: DictConfig, addons: Sequence[TrainingAddOn] = ()) -> tracking.StageResult:
+    """Train on `READS`' view of the composed config; the run logs the composed config whole.
+    ``addons``: the caller's own, after those of the config (an HPO trial's pruning)."""
     cfg = READS.view(composed)
     if cfg.train.resume:
         return resume(composed)
@@ -135,7 +137,7 @@ def run(composed: DictConfig) -> tracking.StageResult:
         composed, "train", run_name=cfg.train.run_name, extra_tags=tags, reads=READS
     ) as active:
         mlflow.log_text(yaml.safe_dump(gains, sort_keys=False), "gains.yaml")
-        summary = _learn(cfg, gains, active.info.run_id, None, {}, _gains_from(tags))
+        summary = _learn(cfg, gains, active.info.run_id, None, {}, _gains_from(tags), addons)
         return tracking.StageResult(active.info.run_id, summary)
 
 
@@ -274,12 +276,14 @@ def _learn(
     model_path: str | None,
     state: dict[str, Any],
     gains_from: str,
+    extra: Sequence[TrainingAddOn] = (),
 ) -> dict[str, float]:
     agent, tr = cfg.agent, cfg.train
     algo = str(agent.algo)
     addons = [
         *build_addons(agent.aids, algo=algo),
         *build_addons(tr.callbacks, "train.callbacks", algo),
+        *extra,
     ]
     if tr.torch_threads:
         torch.set_num_threads(int(tr.torch_threads))

@@ -1,0 +1,201 @@
+"""`armexp hpo`'s loop: trials asked of an Optuna study one at a time, each training its seeds
+in this process (so the held-out checks can prune it), until the study holds ``hpo.n_trials``."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from typing import Any
+
+import mlflow
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from armexp import liveness, tracking
+from armexp.config import ConfigError
+from armexp.hpo import record, space, study
+from armexp.tags import STOP_REASON_TAG
+
+
+def check_seeds(seeds: Sequence[Any], key: str = "hpo.seeds") -> list[int]:
+    """At least two distinct seeds: a trial's value is their interquartile mean."""
+    out = [int(s) for s in seeds]
+    if len(set(out)) < 2 or len(set(out)) != len(out):
+        raise ConfigError(
+            f"{key}={out} is not allowed: give two or more distinct seeds (a trial's value is "
+            "the interquartile mean of their held-out success)."
+        )
+    return out
+
+
+def check_checks(cfg: DictConfig, how: str) -> None:
+    """Trials are scored on the held-out checks, which ``train.eval_every`` = 0 turns off."""
+    if int(cfg.train.eval_every) < 1:
+        raise ConfigError(
+            f"train.eval_every={cfg.train.eval_every} is not allowed with {how}: a trial is scored "
+            "on the held-out checks during training; give a number of environment steps ≥ 1."
+        )
+
+
+def resumable(client: MlflowClient, run_id: str | None, name: str) -> str | None:
+    """The study's HPO run to continue, None when it has none; one sentence when another
+    process still runs it."""
+    if not run_id:
+        return None
+    try:
+        run = client.get_run(run_id)
+    except Exception:
+        return None  # deleted from the store: a new HPO run records the study from now on
+    if liveness.is_alive(run):
+        raise ConfigError(
+            f"the study {name} is not allowed to run twice at once: its HPO run {run_id} is "
+            f"still running in another process (last heartbeat {liveness.heartbeat_age(run):.0f}"
+            " s ago); wait for it to end or stop it first."
+        )
+    return run_id
+
+
+def run(cfg: DictConfig) -> tracking.StageResult:
+    from armexp.stages.train import step_budget
+
+    h = cfg.hpo
+    study.require("armexp hpo")
+    found = space.from_mapping(h.params, cfg, "hpo.params.")
+    seeds = check_seeds(h.seeds)
+    check_checks(cfg, "armexp hpo")
+    budget = step_budget(cfg)
+    pruner = study.make_pruner(h.pruner, int(cfg.train.eval_every), budget * len(seeds))
+    url = study.storage_url(cfg, h.storage)
+    name = study.study_name(cfg, found, seeds, "maximize", h.study_name)
+    the_study = study.open_study(url, name, "maximize", None, pruner, "hpo.study_name")
+    study.reseed(the_study, lambda s: study.make_sampler(str(h.sampler.name), s), h.sampler.seed)
+    experiment_id = tracking.setup(cfg)  # marks an HPO run whose process died FAILED first
+    client = MlflowClient(tracking.store_uri(cfg))
+    previous = resumable(client, the_study.user_attrs.get(study.HPO_RUN_ATTR), name)
+    again = study.recover(the_study)
+    record.mark_interrupted(client, the_study, again)
+    tags = record.hpo_tags(name, url, str(h.pruner.name))
+    with tracking.stage_run(
+        cfg, "hpo", run_name=h.run_name or name, extra_tags=tags, resume_run_id=previous
+    ) as active:
+        hpo_run = active.info.run_id
+        the_study.set_user_attr(study.HPO_RUN_ATTR, hpo_run)
+        done = study.counted(the_study)
+        print(
+            f"hpo: study {name} in {tracking.store.hide_password(url)} | HPO run {hpo_run} | "
+            f"{done} of {h.n_trials} trials done"
+            + (f", trials {', '.join(map(str, again))} interrupted: queued again" if again else "")
+        )
+        about = {"study": name, "storage": tracking.store.hide_password(url),
+                 "direction": "maximize", "n_trials": int(h.n_trials), "seeds": seeds,
+                 "sampler": str(h.sampler.name), "pruner": str(h.pruner.name),
+                 "budget_steps": budget, "how": "armexp hpo"}  # fmt: skip
+        record.snapshot(client, hpo_run, the_study, found, about)
+        while study.counted(the_study) < int(h.n_trials):
+            _trial(cfg, the_study, found, seeds, budget, client, experiment_id, hpo_run)
+            record.snapshot(client, hpo_run, the_study, found, about)
+        summary = _summary(the_study)
+        best = summary.get("hpo/best_value")
+        print(
+            f"hpo: run {hpo_run} | {int(summary['hpo/trials'])} trials "
+            f"({int(summary['hpo/trials_pruned'])} pruned, {int(summary['hpo/trials_failed'])} "
+            "failed)"
+            + (
+                f" | best trial {the_study.best_trial.number}: {best:.3f} "
+                f"{the_study.best_trial.params}"
+                if best is not None
+                else ""
+            )
+        )
+        return tracking.StageResult(hpo_run, summary)
+
+
+def _summary(the_study: Any) -> dict[str, float]:
+    from optuna.trial import TrialState
+
+    states = [t.state for t in the_study.get_trials(deepcopy=False)]
+    out = {
+        "hpo/trials": float(len(states)),
+        "hpo/trials_pruned": float(states.count(TrialState.PRUNED)),
+        "hpo/trials_failed": float(states.count(TrialState.FAIL)),
+    }
+    if TrialState.COMPLETE in states:
+        out["hpo/best_value"] = float(the_study.best_value)
+    return out
+
+
+def trial_config(cfg: DictConfig, overrides: list[str], seed: int) -> DictConfig:
+    """The train config of one seed of a trial: the command's own overrides, then the trial's."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from armexp.config import compose_config
+
+    swept = "tracking.swept=[" + ",".join(f"'{k}'" for k in _keys(overrides)) + "]"
+    if HydraConfig.initialized():
+        task = [o for o in HydraConfig.get().overrides.task if not o.startswith("seed=")]
+        return compose_config([*task, *overrides, f"seed={seed}", swept], stage="train")
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out = copy.deepcopy(cfg)  # called outside a Hydra app: plain keys only
+    with open_dict(out):
+        for o in OverridesParser.create().parse_overrides([*overrides, f"seed={seed}"]):
+            OmegaConf.update(out, o.key_or_group, o.value())
+    return out
+
+
+def _keys(overrides: list[str]) -> list[str]:
+    return [o.partition("=")[0] for o in overrides]
+
+
+def _tag_pruned(client: MlflowClient, train_run: str) -> None:
+    tracking.retry(lambda: client.set_tag(train_run, STOP_REASON_TAG, "pruned"))
+
+
+def _trial(
+    cfg: DictConfig, the_study: Any, found: space.Space, seeds: list[int], budget: int,
+    client: MlflowClient, experiment_id: str, hpo_run: str,
+) -> None:  # fmt: skip
+    from optuna.trial import TrialState
+
+    from armexp.hpo.pruning import ReportChecks
+    from armexp.stages import train
+
+    trial = the_study.ask()
+    params = found.suggest(trial)
+    run_id = record.open_trial(client, experiment_id, hpo_run, trial.number, params, seeds)
+    trial.set_user_attr(record.RUN_ATTR, run_id)
+    print(f"hpo: trial {trial.number} | {params}")
+    overrides = [f"{k}={space._text(v)}" for k, v in params.items()]
+    success: dict[int, float] = {}
+    try:
+        for i, seed in enumerate(seeds):
+            seed_cfg = trial_config(cfg, overrides, seed)
+            prune = ReportChecks(trial, i * budget)
+            # The trial run active: MLflow hangs a nested run under the active one.
+            with mlflow.start_run(run_id=run_id, nested=True), tracking.parent(run_id):
+                result = train.run(seed_cfg, addons=[prune])
+            success[seed] = float(result.summary.get("final/held_out_success", float("nan")))
+            if prune.pruned_at is not None:
+                _tag_pruned(client, result.run_id)
+                the_study.tell(trial, state=TrialState.PRUNED)
+                record.close_trial(client, run_id, "PRUNED", success, None)
+                print(f"hpo: trial {trial.number} pruned at step {prune.pruned_at}")
+                return
+    except ConfigError:
+        the_study.tell(trial, state=TrialState.FAIL)
+        record.close_trial(client, run_id, "FAIL", success, None, "bad config")
+        raise
+    except KeyboardInterrupt:
+        study.interrupt(the_study, trial)
+        record.close_trial(client, run_id, "INTERRUPTED", success, None, "interrupted")
+        raise
+    except Exception as exc:
+        the_study.tell(trial, state=TrialState.FAIL)
+        why = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        record.close_trial(client, run_id, "FAIL", success, None, why)
+        print(f"hpo: trial {trial.number} failed ({why}); going on")
+        return
+    value = record.objective(list(success.values()))
+    the_study.tell(trial, value)
+    record.close_trial(client, run_id, "COMPLETE", success, value)
+    print(f"hpo: trial {trial.number} | held-out success by seed {success} | IQM {value:.3f}")
