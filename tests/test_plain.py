@@ -236,6 +236,17 @@ def test_a_bad_study_agent_is_one_sentence_and_no_run(
     assert not (runs_dir / "mlflow.db").exists() or not stage_runs(runs_dir, "pipeline")
 
 
+def test_other_agents_without_a_study_are_one_sentence_and_no_run(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["pipeline", "pipeline.agents=[{preset: sac_plain}]"]
+    assert main([*args, f"tracking.runs_dir={runs_dir}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "pipeline.agents (presets sac_plain) is not allowed without pipeline.seeds" in err
+    assert not (runs_dir / "mlflow.db").exists() or not stage_runs(runs_dir, "pipeline")
+
+
 @pytest.mark.slow  # a study of one seed with a second agent: tune, two trainings, two evals
 def test_a_study_trains_and_evaluates_its_other_agents_and_reports_them_side_by_side(
     tmp_path: Path,

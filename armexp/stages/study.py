@@ -39,6 +39,13 @@ def run(cfg: DictConfig) -> tracking.StageResult:
     pipelines, is the only module that knows both."""
     from armexp.stages import pipeline
 
+    if not cfg.pipeline.seeds and cfg.pipeline.agents:
+        presets = [str(a.preset) for a in cfg.pipeline.agents]
+        raise ConfigError(
+            f"pipeline.agents (presets {', '.join(presets)}) is not allowed without "
+            "pipeline.seeds: only a study runs other agents; give pipeline.seeds=[…] or "
+            "pipeline.agents=[]."
+        )
     return run_study(cfg) if cfg.pipeline.seeds else pipeline.run_one(cfg)
 
 
