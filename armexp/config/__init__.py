@@ -293,6 +293,39 @@ def _agent_checks(cfg: DictConfig) -> None:
                 "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
         _check_aid_target(f"agent.aids.{name}", target, algo)
+    if agent.get("privileged") is False:
+        _non_privileged(cfg)
+
+
+def _non_privileged(cfg: DictConfig) -> None:
+    """A preset marked ``agent.privileged=false`` learns from what the agent observes and the
+    environment's own reward only: an aid, or a training callback, declared privileged
+    (`armexp.aids`) or living in a privileged aid's module is refused before a run starts."""
+    from armexp import aids
+
+    specs = {f"agent.aids.{k}": v for k, v in (cfg.agent.get("aids") or {}).items()}
+    train = cfg.get("train")
+    if train is not None and not OmegaConf.is_missing(cfg, "train"):
+        specs |= {f"train.callbacks.{k}": v for k, v in (train.get("callbacks") or {}).items()}
+    modules = aids.privileged_modules()
+    for key, spec in specs.items():
+        target = spec.get("_target_") if isinstance(spec, DictConfig) else None
+        if not isinstance(target, str):
+            continue
+        declaration = aids.declared(target)
+        privileged = (
+            declaration.privileged
+            if declaration is not None
+            else target.rpartition(".")[0].startswith(modules)
+        )
+        if privileged:
+            allowed = ", ".join(a.name for a in aids.AIDS if not a.privileged)
+            raise ConfigError(
+                f"{key} is not allowed with agent.privileged=false: {target.rpartition('.')[2]} "
+                "uses privileged knowledge (the planner or the obstacles); a non-privileged "
+                f"preset takes only aids without it ({allowed}), so remove it (~{key}) or use "
+                "an aided preset."
+            )
 
 
 def _rollout_fits(agent: DictConfig) -> None:

@@ -148,6 +148,10 @@ class AgentConfig:
     #: Learning aids, by name, in the order they apply: each a config with a ``_target_``
     #: (`armexp.agents.addons`). None for the paper's plain SAC.
     aids: dict[str, Any] = field(default_factory=dict)
+    #: Whether the preset may use privileged knowledge (the planner, the obstacles beyond what
+    #: the agent observes): false marks a non-privileged preset, whose config check refuses any
+    #: aid or training callback declared privileged (`armexp.aids`, docs/design.md §7).
+    privileged: bool = True
     #: The options of one algorithm each, read only when ``algo`` is that algorithm.
     td3: TD3Options = field(default_factory=TD3Options)
     tqc: TQCOptions = field(default_factory=TQCOptions)

@@ -8,6 +8,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
+from omegaconf import MISSING
+
 from armexp.baselines import ADAPTIVE_OFF, BASELINES, DEFAULT_BASELINES, OWN_LABELS, PLAY_LABELS
 from armexp.config.checks import (
     Check,
@@ -196,6 +198,20 @@ class UiStageConfig:
 
 
 @dataclass
+class StudyAgent:
+    """One more agent of a study (`armexp.stages.study`): trained and evaluated beside
+    ``agent`` at each of its seeds, on the same tuned gains and held-out targets."""
+
+    #: Its preset, an option of the ``agent`` config group (``sac_plain``).
+    preset: str = MISSING
+    #: The seeds it runs at, each one of ``pipeline.seeds`` (empty: all of them).
+    seeds: list[int] = field(default_factory=list)
+    #: Agent keys set on the preset (``max_env_steps: 1000000``); the study's ``agent.*``
+    #: settings are ``agent``'s own and do not reach it.
+    agent: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
 class PipelineStageConfig:
     run_name: str | None = None
     #: Reuse a FINISHED run whose stage inputs match instead of running the stage again.
@@ -206,6 +222,8 @@ class PipelineStageConfig:
     #: In a study, each seed's policy is also evaluated with the paper's adaptive gains
     #: (``eval.adaptive_gains=config eval.baselines=[] eval.ablation=false``).
     paper_gains_row: bool = False
+    #: In a study, more agents beside ``agent``, each with its own seeds and budget.
+    agents: list[StudyAgent] = field(default_factory=list)
 
 
 @dataclass

@@ -71,12 +71,13 @@ def table_two(train_cfg: dict[str, Any], agents: Sequence[AgentInfo] = ()) -> Ta
             algo=algo,
         )
     ]  # fmt: skip
-    rows = (
-        _aid_rows(infos)
-        + _setting_rows(train_cfg, set(infos[0].left_out))
-        + _own_rows(agent, algo)
-        + _spent_rows(infos)
-    )
+    rows = [
+        *_aid_rows(infos),
+        ("Changed from Table II", changes(train_cfg, infos[0]), "–"),
+        *_setting_rows(train_cfg, set(infos[0].left_out)),
+        *_own_rows(agent, algo),
+        *_spent_rows(infos),
+    ]
     shown = pd.DataFrame(
         [(k, plain(v), plain(p)) for k, v, p in rows], columns=["Parameter", "Value", "Paper"]
     )
@@ -120,6 +121,62 @@ def _aid_rows(infos: Sequence[AgentInfo]) -> list[Row]:
         ("Learning aids", aids, "none"),
         ("Aided", aided, "no"),
     ]
+
+
+#: Table II's values as config keys, with the names the changes list gives them.
+_PRINTED = {"batch_size": "batch size", "tau": "tau", "buffer_size": "buffer",
+            "learning_starts": "initial random steps", "gamma": "gamma",
+            "learning_rate": "learning rate", "episodes": "episodes"}  # fmt: skip
+#: What Table II leaves open (`armexp.paper.TABLE_II_OPEN`), by the same names.
+_OPEN = {"n_envs": "parallel environments", "n_steps": "n-step returns",
+         "net_arch": "hidden layers", "critic_arch": "critic layers",
+         "gradients": "gradients", "ent_coef": "entropy coefficient",
+         "target_entropy": "entropy target"}  # fmt: skip
+
+
+def changes(train_cfg: dict[str, Any], info: AgentInfo) -> str:
+    """Every way the run's agent differs from the paper's SAC (`armexp.paper.TABLE_II`, and
+    ``agent=sac_paper`` where Table II gives no value), each as ``name paper → used``, led by
+    whether any uses privileged knowledge (aided) or none does (not aided)."""
+    agent, env = train_cfg["agent"], train_cfg.get("env") or {}
+    printed, open_ = paper.TABLE_II, paper.TABLE_II_OPEN
+    left_out = set(info.left_out)
+    out: list[str] = []
+    if str(agent.get("algo") or "sac") != "sac":
+        out.append(f"algorithm SAC → {info.algorithm}")
+    for key, name in _PRINTED.items():
+        if key not in left_out and key in agent and agent[key] != printed[key]:
+            out.append(f"{name} {plain(printed[key])} → {plain(agent[key])}")
+    for key in ("action_period", "max_steps"):
+        if key in env and env[key] != printed[key]:
+            out.append(f"env.{key} {plain(printed[key])} → {plain(env[key])}")
+    for key, name in _OPEN.items():
+        if key not in left_out and agent.get(key, open_[key]) != open_[key]:
+            out.append(f"{name} {_shown(open_[key])} → {_shown(agent.get(key))}")
+    used = (agent.get("train_freq", 1), agent.get("gradient_steps", 1))
+    if "gradient_steps" not in left_out and used != (open_["train_freq"], open_["gradient_steps"]):
+        ratio = used[1] / (used[0] * int(agent.get("n_envs", 1)))
+        out.append(
+            f"gradient steps per environment step 1 → {ratio:g} ({used[1]} every {used[0]} "
+            "step(s) of all environments)"
+        )
+    steps = agent.get("max_env_steps")
+    if steps is not None and int(steps) < printed["episodes"] * printed["max_steps"]:
+        out.append(f"budget ≤ {int(steps):,} environment steps")
+    out += [a.detail for a in info.aids]
+    privileged = [a.name for a in info.aids if a.privileged]
+    lead = (
+        f"aided ({', '.join(privileged)} use privileged knowledge)"
+        if privileged
+        else "not aided (none uses privileged knowledge)"
+    )
+    return f"{lead}: {'; '.join(out)}" if out else "none: the paper's SAC as printed"
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, list | tuple):
+        return "×".join(str(int(v)) for v in value)
+    return "–" if value is None else plain(value)
 
 
 def _setting_rows(train_cfg: dict[str, Any], left_out: set[str]) -> list[Row]:
