@@ -55,7 +55,7 @@ def make(db: Path) -> bool:
         shutil.copyfile(template, partial)
         _as_made_here(partial)
         partial.replace(db)
-    except (OSError, sqlite3.Error):
+    except Exception:  # MLflow then creates the store itself and says what is wrong
         with contextlib.suppress(OSError):
             db.with_name(db.name + ".new").unlink()
         return False
