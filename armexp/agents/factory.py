@@ -30,7 +30,14 @@ from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
 from armexp.agents.algorithms import ResumableCrossQ, ResumableTD3, ResumableTQC, ResumeRefill
-from armexp.agents.sac import ResumableSAC, build_sac, load_sac, sac_kwargs, target_entropy
+from armexp.agents.sac import (
+    ResumableSAC,
+    build_sac,
+    load_sac,
+    off_policy_kwargs,
+    sac_kwargs,
+    target_entropy,
+)
 from armexp.config.agent_schema import ALGORITHMS, TITLES
 from armexp.resources import device_here
 
@@ -80,24 +87,6 @@ def _arch(agent: DictConfig, critic: str) -> list[int] | dict[str, list[int]]:
     return {"pi": list(agent.net_arch), critic: list(agent.critic_arch)}
 
 
-def _off_policy(agent: DictConfig, tau: bool = True) -> dict[str, Any]:
-    """The replay-buffer options every off-policy algorithm reads as SAC does."""
-    out = {
-        "batch_size": int(agent.batch_size),
-        "buffer_size": int(agent.buffer_size),
-        "learning_starts": int(agent.learning_starts),
-        "gamma": float(agent.gamma),
-        "learning_rate": float(agent.learning_rate),
-        "train_freq": int(agent.train_freq),
-        "gradient_steps": int(agent.gradient_steps),
-        "n_steps": int(agent.n_steps),
-        "device": device_here(str(agent.device)),
-    }
-    if tau:
-        out["tau"] = float(agent.tau)
-    return out
-
-
 def _td3(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
     own = agent.td3
     noise = None
@@ -106,7 +95,7 @@ def _td3(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
         n = int(env.action_space.shape[0])
         noise = NormalActionNoise(np.zeros(n), float(own.action_noise) * np.ones(n))
     return {
-        **_off_policy(agent),
+        **off_policy_kwargs(agent),
         "policy_delay": int(own.policy_delay),
         "target_policy_noise": float(own.target_policy_noise),
         "target_noise_clip": float(own.target_noise_clip),
@@ -118,7 +107,7 @@ def _td3(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
 def _tqc(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
     own = agent.tqc
     return {
-        **_off_policy(agent),
+        **off_policy_kwargs(agent),
         "ent_coef": agent.ent_coef,
         "target_entropy": target_entropy(agent),
         "top_quantiles_to_drop_per_net": int(own.top_quantiles_to_drop_per_net),
@@ -133,7 +122,7 @@ def _tqc(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
 def _crossq(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
     own = agent.crossq
     return {
-        **_off_policy(agent, tau=False),
+        **off_policy_kwargs(agent, tau=False),
         "ent_coef": agent.ent_coef,
         "target_entropy": target_entropy(agent),
         "policy_delay": int(own.policy_delay),

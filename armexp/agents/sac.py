@@ -144,25 +144,35 @@ class ResumableSAC(ResumeRefill, SAC):
                 "actor_loss": actor_losses, "critic_loss": critic_losses}  # fmt: skip
 
 
-def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
-    """SB3 keyword arguments of an ``agent`` config (the keys are Table II's)."""
-    arch: list[int] | dict[str, list[int]] = list(agent.net_arch)
-    if agent.critic_arch is not None:
-        arch = {"pi": list(agent.net_arch), "qf": list(agent.critic_arch)}
-    return {
+def off_policy_kwargs(agent: DictConfig, tau: bool = True) -> dict[str, Any]:
+    """The replay-buffer options every off-policy algorithm reads as SAC does (``tau``: whether
+    it keeps target networks)."""
+    out = {
         "batch_size": int(agent.batch_size),
-        "tau": float(agent.tau),
         "buffer_size": int(agent.buffer_size),
         "learning_starts": int(agent.learning_starts),
         "gamma": float(agent.gamma),
         "learning_rate": float(agent.learning_rate),
         "train_freq": int(agent.train_freq),
         "gradient_steps": int(agent.gradient_steps),
+        "n_steps": int(agent.n_steps),
+        "device": device_here(str(agent.device)),
+    }
+    if tau:
+        out["tau"] = float(agent.tau)
+    return out
+
+
+def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
+    """SB3 keyword arguments of an ``agent`` config (the keys are Table II's)."""
+    arch: list[int] | dict[str, list[int]] = list(agent.net_arch)
+    if agent.critic_arch is not None:
+        arch = {"pi": list(agent.net_arch), "qf": list(agent.critic_arch)}
+    return {
+        **off_policy_kwargs(agent),
         "ent_coef": agent.ent_coef,
         "target_entropy": target_entropy(agent),
-        "n_steps": int(agent.n_steps),
         "policy_kwargs": {"net_arch": arch, "optimizer_kwargs": _adam(agent)},
-        "device": device_here(str(agent.device)),
     }
 
 
