@@ -14,7 +14,7 @@ from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
 from armexp.config import ConfigError
-from armexp.hpo import space, study
+from armexp.hpo import parallel, space, study
 from armexp.tracking import liveness
 from armexp.tracking.tags import (
     HEARTBEAT_TAG,
@@ -91,6 +91,67 @@ def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_di
     best = (report / "tables" / f"hpo_best_{tag}.csv").read_text().splitlines()
     assert best[0].startswith("trial,value,agent.learning_rate,agent.gamma")
     assert len(best) == 5
+
+
+def test_two_processes_share_one_study_and_one_hpo_run(runs_dir: Path) -> None:
+    """hpo.n_jobs=2: the command and one worker ask the same study for trials; every trial is
+    a child of the one HPO run, none is run twice, and the study holds what was asked."""
+    where = f"tracking.runs_dir={runs_dir}"
+    assert main(["hpo", "hpo=smoke", "hpo.n_jobs=2", "hpo.n_trials=4", *TINY, where]) == 0
+    (hpo,) = stage_runs(runs_dir, "hpo")
+    done = _study(runs_dir)
+    assert len(done.trials) >= 4  # each process asks while fewer are held: at most one more
+    assert {t.state.name for t in done.trials} == {"COMPLETE"}
+    assert {t.user_attrs[parallel.PROCESS_ATTR] for t in done.trials} == {0, 1}
+    values = [tuple(sorted(t.params.items())) for t in done.trials]
+    assert len(set(values)) == len(values)  # the processes draw from streams of their own
+    trials = stage_runs(runs_dir, "trial")
+    assert len(trials) == len(done.trials)
+    assert {t.data.tags[PARENT_TAG] for t in trials} == {hpo.info.run_id}
+    assert len(stage_runs(runs_dir, "train")) == 2 * len(done.trials)
+    client = _client(runs_dir)
+    assert client.get_run(hpo.info.run_id).info.status == "FINISHED"
+    records = json.loads(
+        Path(client.download_artifacts(hpo.info.run_id, "hpo/trials.json")).read_text()
+    )
+    assert len(records) == len(done.trials)  # the last snapshot waits for the worker
+
+
+@pytest.mark.slow
+def test_stopping_a_parallel_search_interrupts_every_process_and_the_command_resumes(
+    runs_dir: Path, tmp_path: Path
+) -> None:
+    """SIGTERM to the command mid-trial reaches its worker: both trials are marked interrupted
+    (none left RUNNING), and the same command runs their values again before new ones."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    line = [sys.executable, "-m", "armexp", "hpo", "hpo=smoke", "hpo.n_jobs=2", "hpo.n_trials=3",
+            "agent.max_env_steps=4000", "train.eval_every=2000", "train.eval_targets=2",
+            "env.max_steps=50", f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+    log = tmp_path / "hpo.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen(line, stdout=out, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 300
+        while log.read_text().count("hpo: trial ") < 2 and time.monotonic() < deadline:
+            time.sleep(0.5)
+        time.sleep(3)  # both inside their first seed's training
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=120) == 143
+    stopped = _study(runs_dir)
+    assert {t.state.name for t in stopped.trials} == {"FAIL"}
+    assert all(t.user_attrs[study.INTERRUPTED] for t in stopped.trials)
+    assert {t.user_attrs[parallel.PROCESS_ATTR] for t in stopped.trials} == {0, 1}
+    interrupted = [t.number for t in stopped.trials]  # the study object reads the store live
+
+    assert subprocess.run(line, capture_output=True, timeout=600).returncode == 0
+    after = _study(runs_dir)
+    retried = sorted(t.user_attrs[study.RETRY_OF] for t in after.trials
+                     if study.RETRY_OF in t.user_attrs)  # fmt: skip
+    assert retried == interrupted
+    assert sum(t.state.name == "COMPLETE" for t in after.trials) >= 3
 
 
 def test_a_trial_left_running_by_a_killed_process_is_failed_and_run_again(runs_dir: Path) -> None:

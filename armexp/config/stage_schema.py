@@ -257,6 +257,9 @@ class HpoStageConfig:
     storage: str | None = None
     #: The trials the study holds when the command ends (finished, pruned or failed).
     n_trials: int = checked(20, at_least(1))
+    #: Processes asking for trials at once (Optuna's parallel search: the command and
+    #: ``n_jobs - 1`` copies of it sharing the study; `armexp.hpo.parallel`).
+    n_jobs: int = checked(1, at_least(1))
     #: Each trial trains these seeds; its value is the IQM of their final held-out success.
     seeds: list[int] = checked(factory=lambda: [0, 1], check=each(at_least(0)))
     sampler: HpoSamplerConfig = field(default_factory=HpoSamplerConfig)

@@ -12,7 +12,7 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from armexp.config import ConfigError
-from armexp.hpo import record, space, study
+from armexp.hpo import parallel, record, space, study
 from armexp.tracking import liveness, stage_runs, store
 from armexp.tracking.tags import STOP_REASON_TAG
 
@@ -67,10 +67,21 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
     pruner = study.make_pruner(h.pruner, int(cfg.train.eval_every), budget * len(seeds))
     url = study.storage_url(cfg, h.storage)
     name = study.study_name(cfg, found, seeds, "maximize", h.study_name)
+    me = parallel.role()
+    n_jobs = int(h.n_jobs)
+    line = parallel.command_line() if n_jobs > 1 and not me.is_worker else []
     the_study = study.open_study(url, name, "maximize", None, pruner, "hpo.study_name")
-    study.reseed(the_study, lambda s: study.make_sampler(str(h.sampler.name), s), h.sampler.seed)
+    # Each process its own random stream: workers started together would draw the same values.
+    seed = None if h.sampler.seed is None else int(h.sampler.seed) + 1_000_003 * me.index
+    study.reseed(the_study, lambda s: study.make_sampler(str(h.sampler.name), s), seed)
     experiment_id = stage_runs.setup(cfg)  # marks an HPO run whose process died FAILED first
     client = MlflowClient(store.store_uri(cfg))
+    if me.is_worker:
+        assert me.hpo_run is not None
+        print(f"hpo: worker {me.index} of study {name} | HPO run {me.hpo_run}")
+        while me.owner_alive() and study.claimed(the_study) < int(h.n_trials):
+            _trial(cfg, the_study, found, seeds, budget, client, experiment_id, me.hpo_run)
+        return stage_runs.StageResult(me.hpo_run, _summary(the_study))
     previous = resumable(client, the_study.user_attrs.get(study.HPO_RUN_ATTR), name)
     again = study.recover(the_study)
     record.mark_interrupted(client, the_study, again)
@@ -89,11 +100,20 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
         about = {"study": name, "storage": store.hide_password(url),
                  "direction": "maximize", "n_trials": int(h.n_trials), "seeds": seeds,
                  "sampler": str(h.sampler.name), "pruner": str(h.pruner.name),
-                 "budget_steps": budget, "how": "armexp hpo"}  # fmt: skip
+                 "budget_steps": budget, "n_jobs": n_jobs, "how": "armexp hpo"}  # fmt: skip
         record.snapshot(client, hpo_run, the_study, found, about)
-        while study.counted(the_study) < int(h.n_trials):
-            _trial(cfg, the_study, found, seeds, budget, client, experiment_id, hpo_run)
-            record.snapshot(client, hpo_run, the_study, found, about)
+        workers = parallel.start(n_jobs, hpo_run, line) if line else parallel.Workers()
+        try:
+            while study.claimed(the_study) < int(h.n_trials):
+                _trial(cfg, the_study, found, seeds, budget, client, experiment_id, hpo_run)
+                record.snapshot(client, hpo_run, the_study, found, about)
+        except BaseException:
+            workers.stop()
+            raise
+        failed = [i for i, code in enumerate(workers.join(), 1) if code != 0]
+        if failed:
+            print(f"hpo: workers {failed} ended with an error (their Hydra logs say why)")
+        record.snapshot(client, hpo_run, the_study, found, about)
         summary = _summary(the_study)
         best = summary.get("hpo/best_value")
         print(
@@ -164,6 +184,7 @@ def _trial(
     params = found.suggest(trial)
     run_id = record.open_trial(client, experiment_id, hpo_run, trial.number, params, seeds)
     trial.set_user_attr(record.RUN_ATTR, run_id)
+    trial.set_user_attr(parallel.PROCESS_ATTR, parallel.role().index)
     print(f"hpo: trial {trial.number} | {params}")
     overrides = [f"{k}={space._text(v)}" for k, v in params.items()]
     success: dict[int, float] = {}

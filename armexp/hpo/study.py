@@ -203,6 +203,14 @@ def counted(study: Any) -> int:
     )
 
 
+def claimed(study: Any) -> int:
+    """Trials that count, and those running now (in this process or another of the search)."""
+    from optuna.trial import TrialState
+
+    running = len(study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)))
+    return counted(study) + running
+
+
 def interrupt(study: Any, trial: Any) -> None:
     """Mark a trial stopped by a signal: FAIL, interrupted (queued again on resume)."""
     from optuna.trial import TrialState
