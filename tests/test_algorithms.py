@@ -112,6 +112,11 @@ def test_what_each_algorithm_maps_or_leaves_out_is_said_in_one_line() -> None:
         "agent.algo=ppo on agent=sac_smoke: agent.batch_size is PPO's minibatch size; agent.tau, "
         "agent.buffer_size, agent.learning_starts, agent.train_freq, agent.gradient_steps, "
     )
+    # An option the algorithm has no use for is said once it is set.
+    td3 = compose_config([*SMALL, "agent.algo=td3", "agent.target_entropy=-1.0"]).agent
+    assert usage(td3).line("sac_smoke") == (
+        "agent.algo=td3 on agent=sac_smoke: agent.ent_coef, agent.target_entropy do not apply."
+    )
     assert set(ALGORITHM) == set(ALGORITHMS)
     assert {a.name for a in ALGORITHM.values() if a.off_policy} == OFF_POLICY
 
@@ -264,7 +269,12 @@ def test_a_train_run_tags_its_algorithm_and_is_named_after_it(
     assert run.data.tags["armexp.agent_algo"] == algo
     assert run.data.tags["mlflow.runName"] == f"train-sac_smoke-{algo}-s0"
     left_out = run.data.tags["armexp.agent_left_out"].split(",")
-    assert left_out == (["ent_coef"] if algo == "td3" else list(ALGORITHM["ppo"].leaves_out))
+    unset = {"target_entropy"}  # null in the preset: neither applied nor left out
+    assert left_out == (
+        ["ent_coef"]
+        if algo == "td3"
+        else [k for k in ALGORITHM["ppo"].leaves_out if k not in unset]
+    )
     assert f"train: agent.algo={algo} on agent=sac_smoke: " in capsys.readouterr().out
 
 

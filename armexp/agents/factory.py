@@ -160,14 +160,14 @@ def _sac(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
 #: Every ``agent.algo``, by name.
 ALGORITHM: dict[str, Algorithm] = {
     "sac": Algorithm("sac", ResumableSAC, True, _sac),
-    "td3": Algorithm("td3", ResumableTD3, True, _td3, leaves_out=("ent_coef",)),
+    "td3": Algorithm("td3", ResumableTD3, True, _td3, leaves_out=("ent_coef", "target_entropy")),
     "tqc": Algorithm("tqc", ResumableTQC, True, _tqc),
     "crossq": Algorithm("crossq", ResumableCrossQ, True, _crossq, leaves_out=("tau",)),
     "ppo": Algorithm(
         "ppo", PPO, False, _ppo,
         maps={"batch_size": "minibatch size", "critic_arch": "value network"},
         leaves_out=("tau", "buffer_size", "learning_starts", "train_freq", "gradient_steps",
-                    "ent_coef", "n_steps"),
+                    "ent_coef", "target_entropy", "n_steps"),
     ),
 }  # fmt: skip
 assert tuple(ALGORITHM) == ALGORITHMS  # the schema's list of choices and this one agree
@@ -179,11 +179,12 @@ def algorithm(agent: DictConfig) -> Algorithm:
 
 
 def usage(agent: DictConfig) -> Usage:
-    """Which of ``agent``'s shared options its algorithm maps or leaves out; a mapping of an
-    option left unset (``critic_arch: null``) is not one."""
+    """Which of ``agent``'s shared options its algorithm maps or leaves out; an option left
+    unset (``critic_arch: null``, ``target_entropy: null``) is neither."""
     algo = algorithm(agent)
     mapped = {k: v for k, v in algo.maps.items() if agent.get(k) is not None}
-    return Usage(algo.name, mapped, algo.leaves_out)
+    left_out = tuple(k for k in algo.leaves_out if agent.get(k) is not None)
+    return Usage(algo.name, mapped, left_out)
 
 
 def _without_argument_checks() -> None:
