@@ -5,11 +5,12 @@ Run from the repository root::
     python benchmarks/report_speed.py          # builds runs/bench_report once (a few minutes)
     python benchmarks/report_speed.py --runs 10
 
-The store is written by real, small stages: a short CSO for each controller, a 600-step SAC run
+The store is written by real, small stages: a short CSO for each tune run the default eval
+reads (its controller's and its baselines', as the pipeline tunes them), a 600-step SAC run
 with 100-step episodes, then ``armexp eval -m seed=range(N)`` (each eval: tasks (a)–(d) and two
-random targets, both controllers). The report over all N eval runs is then timed twice (the
-second run reuses nothing: it reads the store again and rewrites every file); the best is
-printed with the per-run cost.
+random targets, the adaptive law and the default baselines). The report over all N eval runs is
+then timed twice (the second run reuses nothing: it reads the store again and rewrites every
+file); the best is printed with the per-run cost.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mlflow.tracking import MlflowClient
 
 from armexp.cli import main as armexp
+from armexp.config import compose_config
+from armexp.stages.pipeline import tune_steps
 from tests.helpers import SMALL_TRAIN, SMALL_TUNE
 
 TARGET_S = 15.0
@@ -55,9 +58,10 @@ def main() -> int:
     have = eval_count(runs_dir)
     if have < args.runs:
         print(f"building the store: {args.runs - have} eval runs to add to {have}")
-        if have == 0:
-            for controller in ("subsystem_adaptive", "pid"):
-                assert armexp(["tune", f"controller={controller}", *SMALL_TUNE, where]) == 0
+        if have == 0:  # every tune run the default eval reads: its controller's and baselines'
+            for controller, criterion in tune_steps(compose_config()).values():
+                line = [f"controller={controller}", f"tuner.objective.criterion={criterion}"]
+                assert armexp(["tune", *line, *SMALL_TUNE, where]) == 0
             assert armexp(["train", *SMALL_TRAIN, where]) == 0
         seeds = f"range({have},{args.runs})"
         assert armexp(["eval", "-m", f"seed={seeds}", "tasks.n_random=2", where]) == 0

@@ -107,6 +107,24 @@ def close_trial(
     store.retry(lambda: client.set_terminated(run_id, status.get(state, "FAILED")))
 
 
+def end_trial(
+    study: Any, trial: Any, client: Any, run_id: str, success: Mapping[int, float],
+    error: str | None = None,
+) -> float | None:  # fmt: skip
+    """Tell the study how a trial ended and close its run: FAIL with ``error``, or COMPLETE with
+    the objective of its seeds' ``success`` (returned)."""
+    from optuna.trial import TrialState
+
+    if error is not None:
+        study.tell(trial, state=TrialState.FAIL)
+        close_trial(client, run_id, "FAIL", success, None, error)
+        return None
+    value = objective(list(success.values()))
+    study.tell(trial, value)
+    close_trial(client, run_id, "COMPLETE", success, value)
+    return value
+
+
 def mark_interrupted(client: Any, study: Any, numbers: Sequence[int]) -> None:
     """Tag the trial runs of trials a stopped process left behind (`armexp.hpo.study.recover`)."""
     from armexp.tracking import store

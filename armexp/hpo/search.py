@@ -203,20 +203,16 @@ def _trial(
                 print(f"hpo: trial {trial.number} pruned at step {prune.pruned_at}")
                 return
     except ConfigError:
-        the_study.tell(trial, state=TrialState.FAIL)
-        record.close_trial(client, run_id, "FAIL", success, None, "bad config")
+        record.end_trial(the_study, trial, client, run_id, success, "bad config")
         raise
     except KeyboardInterrupt:
         study.interrupt(the_study, trial)
         record.close_trial(client, run_id, "INTERRUPTED", success, None, "interrupted")
         raise
     except Exception as exc:
-        the_study.tell(trial, state=TrialState.FAIL)
         why = f"{type(exc).__name__}: {exc}".splitlines()[0]
-        record.close_trial(client, run_id, "FAIL", success, None, why)
+        record.end_trial(the_study, trial, client, run_id, success, why)
         print(f"hpo: trial {trial.number} failed ({why}); going on")
         return
-    value = record.objective(list(success.values()))
-    the_study.tell(trial, value)
-    record.close_trial(client, run_id, "COMPLETE", success, value)
+    value = record.end_trial(the_study, trial, client, run_id, success)
     print(f"hpo: trial {trial.number} | held-out success by seed {success} | IQM {value:.3f}")

@@ -168,7 +168,6 @@ def _tell(
     the_study: Any, trial: Any, run_id: str, client: Any, seeds: Sequence[int], jobs: Sequence[Any]
 ) -> None:
     from hydra.core.utils import JobStatus
-    from optuna.trial import TrialState
 
     success: dict[int, float] = {}
     error = None
@@ -183,14 +182,10 @@ def _tell(
             )  # fmt: skip
             continue
         success[seed] = float(summary["final/held_out_success"])
-    if error:
-        the_study.tell(trial, state=TrialState.FAIL)
-        record.close_trial(client, run_id, "FAIL", success, None, error)
+    value = record.end_trial(the_study, trial, client, run_id, success, error)
+    if value is None:
         print(f"armexp train: trial {trial.number} failed ({error})")
         return
-    value = record.objective(list(success.values()))
-    the_study.tell(trial, value)
-    record.close_trial(client, run_id, "COMPLETE", success, value)
     print(f"armexp train: trial {trial.number} | {trial.params} | IQM {value:.3f}")
 
 
