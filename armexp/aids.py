@@ -74,8 +74,15 @@ AVERAGING = AidDeclaration(
     ),
     OFF_POLICY,  # a separate actor; PPO's shares one module with its value network
 )  # fmt: skip
+CURRICULUM = AidDeclaration(
+    "curriculum", "armexp.agents.curriculum.TargetCurriculum", False, "target curriculum",
+    lambda a: (
+        f"targets within {number_arg(a, 'start'):g} m of the starting tip, widened to the whole "
+        f"workspace by {number_arg(a, 'full_at') * 100:g} % of the budget"
+    ),
+)  # fmt: skip
 #: Every aid, in the order the presets list them.
-AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING)
+AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM)
 
 
 def declared(target: str) -> AidDeclaration | None:

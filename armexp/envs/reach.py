@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from armexp.envs.geometry import Array, joint_positions
+from armexp.envs.geometry import Array, joint_positions, tips
 from armexp.envs.kernel import env_step, observe
 from armexp.envs.observation import ObservationLayout
 from armexp.envs.render import Canvas
@@ -195,6 +195,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
 
         self.target = self.workspace.points[0].copy()
+        #: Targets are drawn from these workspace points only (`set_target_reach`; None: all).
+        self._near: np.ndarray | None = None
         self.tip = np.zeros(2)
         self.error = 0.0
         self.steps = 0
@@ -218,8 +220,11 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             self.target = np.asarray(self.settings.tasks[name], dtype=np.float64)
         elif options.get("target") is not None:
             self.target = np.asarray(options["target"], dtype=np.float64).reshape(2)
-        else:
+        elif self._near is None:
             self.target = self.workspace.sample(self.np_random)
+        else:
+            pick = int(self._near[int(self.np_random.integers(len(self._near)))])
+            self.target = self.workspace.points[pick].copy()
         # The τ_d draws of the episode follow the env's seeded generator.
         q0 = self.settings.q0
         offset = options.get("reference_offset")
@@ -254,6 +259,23 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         if truncated:
             self.reason = "time_limit"
         return obs, float(reward), terminated, truncated, self._info()
+
+    def start_distances(self) -> np.ndarray:
+        """Each workspace target's distance from the tip at the starting configuration (m)."""
+        start = np.asarray(tips(np.asarray(self.settings.q0, float), self._lengths))
+        return np.asarray(np.linalg.norm(self.workspace.points - start, axis=1))
+
+    def set_target_reach(self, reach: float | None) -> None:
+        """From the next reset on, draw targets within ``reach`` metres of the starting tip only
+        (the nearest target when none is that close); None: the whole workspace again. A
+        curriculum over target distance (`armexp.agents.curriculum`) widens it over training:
+        a Euclidean distance, no obstacle knowledge."""
+        if reach is None:
+            self._near = None
+            return
+        d = self.start_distances()
+        near = np.flatnonzero(d <= float(reach))
+        self._near = near if near.size else np.array([int(np.argmin(d))])
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
