@@ -155,15 +155,7 @@ def episodes_of(
         frame.insert(3, "agent_preset", info.preset)
         frame.insert(4, "aided", info.aided)
         frame.insert(5, "gains", info.gains)
-        on_tasks = frame.task.isin(list(TASKS))
-        stored = set(frame.controller.astype(str))
-        for name, value in sorted(ev.data.metrics.items()):
-            label, _, rest = name.partition(".")
-            task, _, key = rest.partition(".")
-            if label in stored and task in TASKS and key and "." not in key:
-                rows = on_tasks & (frame.controller == label) & (frame.task == task)
-                if rows.any():
-                    frame.loc[rows, key] = metric_value(value)
+        _task_metrics_onto(frame, ev.data.metrics)
         frames.append(labels.annotate(frame, run_labels.get(run_id, {})))
     if not frames:
         raise ConfigError(
@@ -171,6 +163,30 @@ def episodes_of(
             "artifact (were their artifacts deleted?)."
         )
     return pd.concat(frames, ignore_index=True)
+
+
+def _task_metrics_onto(frame: pd.DataFrame, metrics: dict[str, float]) -> None:
+    """Write each ``<label>.<task>.<metric>`` metric of a paper task into that label's rows of
+    that task, in the column ``<metric>``: one aligned assignment per metric name (an eval run
+    logs hundreds of them), where a value exists."""
+    stored = set(frame.controller.astype(str))
+    found = []
+    for name, value in metrics.items():
+        label, _, rest = name.partition(".")
+        task, _, key = rest.partition(".")
+        if label in stored and task in TASKS and key and "." not in key:
+            found.append((label, task, key, metric_value(value)))
+    if not found:
+        return
+    long = pd.DataFrame(found, columns=["controller", "task", "key", "value"]).assign(has=1.0)
+    wide = long.pivot(index=["controller", "task"], columns="key", values=["value", "has"])
+    rows = pd.MultiIndex.from_arrays([frame.controller.astype(str), frame.task.astype(str)])
+    on_tasks = frame.task.isin(list(TASKS)).to_numpy() & rows.isin(wide.index)
+    aligned = wide.reindex(rows)
+    for key in sorted(long.key.unique()):
+        where = on_tasks & aligned["has", key].notna().to_numpy()  # a NaN metric is written too
+        if where.any():
+            frame.loc[where, key] = aligned["value", key].to_numpy()[where]
 
 
 def _values(texts: list[str | None], show: Any) -> str | None:

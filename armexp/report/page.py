@@ -37,6 +37,7 @@ MAX_TRAINING_CURVES = 4
 
 def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -> dict[str, float]:
     """Every table and figure of the report into ``folder``; returns headline numbers."""
+    reader.know(selection.all_runs)
     primary = selection.evals[0]
     train_id = primary.data.tags.get(TRAIN_RUN_TAG, "")
     configs = {tid: reader.yaml(tid, "config.yaml") for tid in sorted(selection.trains)}
