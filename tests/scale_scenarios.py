@@ -145,8 +145,47 @@ def scenario_fault(work: Path) -> dict:
                 "runs": runs_of(url), "launcher": "ray"}  # fmt: skip
 
 
+#: An Optuna search of a smoke agent: two trials, then the same command with a third.
+OPTUNA = ["train", "-m", "hydra/sweeper=optuna", "hydra/sweeper/sampler=random",
+          "hydra.sweeper.sampler.seed=3", "controller.gains=paper", "train.gains=config",
+          *SMALL_TRAIN, "agent.max_env_steps=200", "agent.learning_starts=50",
+          "train.eval_every=100", "train.eval_targets=2",
+          "agent.learning_rate=tag(log, interval(1e-4, 1e-2))"]  # fmt: skip
+
+
+def scenario_optuna(work: Path) -> dict:
+    """The Optuna sweeper's trials through the Ray launcher, MLflow on PostgreSQL and the study
+    in the database beside it (``mlflow_optuna``, made by the administrator); then the same
+    command with one trial more resumes the study."""
+    import optuna
+
+    with postgres(work) as db, ray_cluster(work) as address:
+        created = create_database(db, "mlflow_optuna")
+        at = [f"tracking.uri={db}", f"tracking.runs_dir={work / 'runs'}", *RAY]
+        env = {"RAY_ADDRESS": address}
+        sweeps = [armexp([*OPTUNA, "hydra.sweeper.n_trials=2", *at], env),
+                  armexp([*OPTUNA, "hydra.sweeper.n_trials=3", *at], env)]  # fmt: skip
+        (name,) = optuna.get_all_study_names(created)
+        trials = [{"number": t.number, "state": t.state.name, "params": t.params}
+                  for t in optuna.load_study(study_name=name, storage=created).trials]  # fmt: skip
+        return {"sweeps": sweeps, "runs": runs_of(db), "launcher": "ray", "study": name,
+                "storage": created.rpartition("@")[2], "trials": trials}  # fmt: skip
+
+
+def create_database(uri: str, name: str) -> str:
+    """A database ``name`` on the server of ``uri``; its URI."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    from tests.cluster import PG_USER, _as_pg, _pg_bin
+
+    parts = urlsplit(uri)
+    _as_pg([_pg_bin("createdb"), "-h", str(parts.hostname), "-p", str(parts.port), "-U",
+            PG_USER, name], capture_output=True)  # fmt: skip
+    return urlunsplit(parts._replace(path=f"/{name}"))
+
+
 SCENARIOS = {"ray": scenario_ray, "submitit": scenario_submitit, "server": scenario_server,
-             "fault": scenario_fault}  # fmt: skip
+             "fault": scenario_fault, "optuna": scenario_optuna}  # fmt: skip
 
 
 def summary(name: str, result: dict) -> list[str]:
@@ -154,6 +193,13 @@ def summary(name: str, result: dict) -> list[str]:
     points launched and how they ended (with the reasons of those that did not finish), and
     how many stage runs were reused instead of run."""
     runs = result["runs"]
+    if "trials" in result:  # an Optuna search: one HPO run across its commands
+        states = [t["state"] for t in result["trials"]]
+        return [f"{name} command {i} via {result['launcher']}: exit {cmd['rc']}, "
+                f"{cmd['wall_s']:.1f} s wall" for i, cmd in enumerate(result["sweeps"], 1)] + [
+            f"{name}: study {result['study']} in {result['storage']}: {len(states)} trials "
+            f"({', '.join(states)}); train runs {sum(r['stage'] == 'train' for r in runs)}"
+        ]  # fmt: skip
     sweeps = sorted((r for r in runs if r["stage"] == "sweep"), key=lambda r: r["start"])
     lines = []
     for i, (cmd, sweep) in enumerate(zip(result["sweeps"], sweeps, strict=True), 1):

@@ -34,6 +34,7 @@ pytestmark = [
 
 
 NEEDS = {"ray": ("hydra_plugins.hydra_ray_launcher", "psycopg2"),
+         "optuna": ("hydra_plugins.hydra_ray_launcher", "psycopg2", "optuna"),
          "submitit": ("hydra_plugins.hydra_submitit_launcher",),
          "server": ("psycopg2",),
          "fault": ("hydra_plugins.hydra_ray_launcher", "psycopg2")}  # fmt: skip
@@ -144,3 +145,28 @@ def test_a_worker_killed_mid_sweep_is_failed_with_a_reason_and_reuse_completes_i
             assert "eval" not in reused and "tune" in reused
         else:
             assert reused == {*tune_steps(compose_config(PIPELINE[1:])), "train", "eval"}
+
+
+def test_an_optuna_search_runs_its_trials_on_ray_and_keeps_its_study_on_postgresql(
+    tmp_path: Path,
+) -> None:
+    """`hydra/sweeper=optuna` through the Ray launcher, MLflow on PostgreSQL: every trial's seeds
+    are train runs under its trial run under one HPO run, the study sits in the server's
+    ``mlflow_optuna``, and the same command with n_trials=3 runs exactly one more trial."""
+    result = _scenario("optuna", tmp_path)
+    assert [c["rc"] for c in result["sweeps"]] == [0, 0], result["sweeps"]
+    assert "Connected to Ray cluster" in result["sweeps"][0]["out"]
+    assert result["storage"].endswith("/mlflow_optuna")
+    assert [t["state"] for t in result["trials"]] == ["COMPLETE"] * 3
+    params = [tuple(t["params"].items()) for t in result["trials"]]
+    assert len(set(params)) == 3  # the resumed command drew values of its own
+    runs = result["runs"]
+    (hpo,) = [r for r in runs if r["stage"] == "hpo"]
+    trials = [r for r in runs if r["stage"] == "trial"]
+    assert len(trials) == 3 and {t["parent"] for t in trials} == {hpo["id"]}
+    trains = [r for r in runs if r["stage"] == "train"]
+    assert sorted(r["seed"] for r in trains) == ["0", "0", "0", "1", "1", "1"]
+    assert {r["parent"] for r in trains} == {t["id"] for t in trials}
+    assert all(r["status"] == "FINISHED" for r in [hpo, *trials, *trains])
+    # The train jobs ran in Ray's worker processes, not in the command's (the HPO run's).
+    assert hpo["armexp.process"] not in {r["armexp.process"] for r in trains}

@@ -503,7 +503,9 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
     for preset in ("sac_quick", "sac_demo"):
         specs = compose_config([f"agent={preset}"]).agent.aids
         assert {name: spec._target_ for name, spec in specs.items()} == {
-            a.name: a.target for a in aids.AIDS if a is not aids.CURRICULUM  # in no preset yet
+            a.name: a.target
+            for a in aids.AIDS
+            if a is not aids.CURRICULUM  # in no preset yet
         }, preset
     for declaration in aids.AIDS:
         module, _, name = declaration.target.rpartition(".")
