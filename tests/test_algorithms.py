@@ -275,6 +275,8 @@ def test_a_train_run_tags_its_algorithm_and_is_named_after_it(
         if algo == "td3"
         else [k for k in ALGORITHM["ppo"].leaves_out if k not in unset]
     )
+    mapped = run.data.tags.get("armexp.agent_mapped")
+    assert mapped == ("batch_size=minibatch size" if algo == "ppo" else None)
     assert f"train: agent.algo={algo} on agent=sac_smoke: " in capsys.readouterr().out
 
 

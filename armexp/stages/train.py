@@ -59,6 +59,7 @@ from armexp.tracking import artifacts, liveness, lookup, remote, run_end, stage_
 from armexp.tracking.tags import (
     AGENT_ALGO_TAG,
     AGENT_LEFT_OUT_TAG,
+    AGENT_MAPPED_TAG,
     AGENT_PRESET_TAG,
     ERROR_TAG,
     GAINS_SOURCE_TAG,
@@ -264,6 +265,8 @@ def _algo_tags(agent: DictConfig, preset: str) -> dict[str, str]:
     if line:
         print(f"train: {line}")
         tags[AGENT_LEFT_OUT_TAG] = ",".join(used.left_out) or "none"
+        if used.mapped:
+            tags[AGENT_MAPPED_TAG] = ";".join(f"{k}={v}" for k, v in used.mapped.items())
     return tags
 
 

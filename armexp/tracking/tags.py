@@ -53,6 +53,9 @@ AGENT_PRESET_TAG = "armexp.agent_preset"
 #: read (train runs where there are any; `armexp.agents.factory.usage`).
 AGENT_ALGO_TAG = "armexp.agent_algo"
 AGENT_LEFT_OUT_TAG = "armexp.agent_left_out"
+#: The preset's options that algorithm reads with a meaning of its own, ``key=meaning`` joined by
+#: ``;`` (PPO's ``batch_size=minibatch size``), where there are any.
+AGENT_MAPPED_TAG = "armexp.agent_mapped"
 #: The step a resumed train run continued from, and why a train run stopped.
 RESUMED_TAG = "armexp.resumed_from_step"
 STOP_REASON_TAG = "armexp.stop_reason"
