@@ -244,14 +244,19 @@ def training_curves(selection: Selection, reader: Reader) -> dict[str, dict[str,
     return curves
 
 
+def held_out_histories(selection: Selection, reader: Reader) -> dict[str, pd.DataFrame]:
+    """Each train run's held-out checks during training (``eval/success_rate``: step, value)."""
+    return {run_id: reader.history(run_id, "eval/success_rate") for run_id in selection.trains}
+
+
 def held_out_curves(
-    selection: Selection, reader: Reader, agents: dict[str, AgentInfo]
+    histories: dict[str, pd.DataFrame], agents: dict[str, AgentInfo]
 ) -> dict[str, list[pd.DataFrame]]:
-    """Held-out success histories (``eval/success_rate``) per agent preset, one per train run."""
+    """Held-out success histories per agent preset, one per train run."""
     by_train = {a.train_run: a for a in agents.values()}
     groups: dict[str, list[pd.DataFrame]] = {}
-    for run_id in sorted(selection.trains):
-        history = reader.history(run_id, "eval/success_rate")
+    for run_id in sorted(histories):
+        history = histories[run_id]
         info = by_train.get(run_id)
         if not len(history) or info is None:
             continue

@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 
 from armexp.paper import TASKS
 from armexp.report import (
+    agents_compared,
     claims,
     comparison,
     figures,
@@ -49,7 +50,11 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
     ctx = gather.context_of(selection, agents, train_cfg)
     ctx.missing = gather.missing_seeds(selection, [int(s) for s in cfg.report.seeds])
     tunes = tuning.tunes_of(selection, reader, run_labels)
+    histories = gather.held_out_histories(selection, reader)
     made = _tables(episodes, ctx, train_cfg, agents, train_id, tunes)
+    compared = agents_compared.agents_table(episodes, agents, histories)
+    if compared is not None:
+        made.insert(1, compared)
     for t in made:
         t.write(folder / "tables")
 
@@ -64,7 +69,7 @@ def build(selection: Selection, reader: Reader, folder: Path, cfg: DictConfig) -
     runs_frame.to_csv(folder / "runs.csv", index=False)
     shown = _figure_run(selection, run_labels)
     _paper_figures(shown, episodes, reader, train_cfg, str(cfg.report.fig6_task), save)
-    _run_figures(selection, reader, agents, episodes, save)
+    _run_figures(selection, reader, agents, episodes, histories, save)
     _cso_figure(shown, run_labels[shown], tunes, save)
     animations = gather.animations_of(shown, run_labels[shown], reader, folder)
     index.write(folder, made, pictures, animations, runs_frame, selection, cfg, ctx.agent)
@@ -210,6 +215,7 @@ def _run_figures(
     reader: Reader,
     agents: dict[str, AgentInfo],
     episodes: pd.DataFrame,
+    histories: dict[str, pd.DataFrame],
     save: Any,
 ) -> None:
     """Training curves, learning curves across seeds and performance profiles."""
@@ -221,7 +227,7 @@ def _run_figures(
             "Training curves of each train run: success rate and episode reward against "
             "environment steps.",
         )
-    groups = gather.held_out_curves(selection, reader, agents)
+    groups = gather.held_out_curves(histories, agents)
     if groups:
         save(
             seed_figures.learning_curves_ci(groups, n_boot=formatting.N_BOOT),
