@@ -91,6 +91,9 @@ def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_di
     best = (report / "tables" / f"hpo_best_{tag}.csv").read_text().splitlines()
     assert best[0].startswith("trial,value,agent.learning_rate,agent.gamma")
     assert len(best) == 5
+    shown = (report / "tables" / f"hpo_best_{tag}.md").read_text()
+    assert f"Trial {int(best[1].split(',')[0])}'s values, to train on fresh seeds" in shown
+    assert "`agent.learning_rate=" in shown and " agent.gamma=" in shown
 
 
 def test_two_processes_share_one_study_and_one_hpo_run(runs_dir: Path) -> None:

@@ -99,7 +99,8 @@ def tables_of(hpo: Hpo, weights: dict[str, float], note: str) -> list[Table]:
             notes=[
                 f"{len(hpo.trials)} trials ({counts}) of {hpo.about.get('how', 'an HPO')}; "
                 "value: the interquartile mean of the final held-out success over seeds "
-                f"{hpo.about.get('seeds')}."
+                f"{hpo.about.get('seeds')}.",
+                *_retrain_note(best),
             ],
             caption=f"HPO run {hpo.run_id}",
         )
@@ -116,6 +117,25 @@ def tables_of(hpo: Hpo, weights: dict[str, float], note: str) -> list[Table]:
         )
     )
     return made
+
+
+def _retrain_note(best: list[dict[str, Any]]) -> list[str]:
+    """The best trial's values as overrides, to train them on fresh seeds: the HPO's targets
+    chose them, so they are no longer held out for it (docs/hpo.md)."""
+    if not best:
+        return []
+    values = " ".join(f"{k}={_override(v)}" for k, v in best[0]["params"].items())
+    return [
+        f"Trial {best[0]['number']}'s values, to train on fresh seeds (with the HPO command's "
+        f"own overrides, e.g. its `hpo=` preset, and a seed outside its seeds): `{values}`."
+    ]
+
+
+def _override(value: Any) -> str:
+    """A value as Hydra's override grammar reads it back (a list without spaces)."""
+    if isinstance(value, list | tuple):
+        return "[" + ",".join(_override(v) for v in value) + "]"
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
 def objective_figure(hpo: Hpo) -> Any:
