@@ -97,27 +97,47 @@ def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_di
 
 
 def test_two_processes_share_one_study_and_one_hpo_run(runs_dir: Path) -> None:
-    """hpo.n_jobs=2: the command and one worker ask the same study for trials; every trial is
-    a child of the one HPO run, none is run twice, and the study holds what was asked."""
+    """hpo.n_jobs=2 starts a copy of the command as a worker; a worker asks the same study for
+    trials and hangs them under the same HPO run, with values of its own."""
+    import os
+    import subprocess
+    import sys
+
     where = f"tracking.runs_dir={runs_dir}"
-    assert main(["hpo", "hpo=smoke", "hpo.n_jobs=2", "hpo.n_trials=4", *TINY, where]) == 0
+    assert main(["hpo", "hpo=smoke", "hpo.n_jobs=2", "hpo.n_trials=3", *TINY, where]) == 0
     (hpo,) = stage_runs(runs_dir, "hpo")
     done = _study(runs_dir)
-    assert len(done.trials) >= 4  # each process asks while fewer are held: at most one more
+    held = len(done.trials)
+    assert held >= 3  # each process asks while fewer are held: at most one more
     assert {t.state.name for t in done.trials} == {"COMPLETE"}
-    assert {t.user_attrs[parallel.PROCESS_ATTR] for t in done.trials} == {0, 1}
-    values = [tuple(sorted(t.params.items())) for t in done.trials]
-    assert len(set(values)) == len(values)  # the processes draw from streams of their own
-    trials = stage_runs(runs_dir, "trial")
-    assert len(trials) == len(done.trials)
-    assert {t.data.tags[PARENT_TAG] for t in trials} == {hpo.info.run_id}
-    assert len(stage_runs(runs_dir, "train")) == 2 * len(done.trials)
+    # The worker was started with the command's own overrides, in a folder of its own.
+    (started,) = runs_dir.glob("hydra/hpo/*/worker-1/.hydra/overrides.yaml")
+    assert "hpo.n_jobs=2" in started.read_text()
     client = _client(runs_dir)
     assert client.get_run(hpo.info.run_id).info.status == "FINISHED"
     records = json.loads(
         Path(client.download_artifacts(hpo.info.run_id, "hpo/trials.json")).read_text()
     )
-    assert len(records) == len(done.trials)  # the last snapshot waits for the worker
+    assert len(records) == held  # the last snapshot waits for the worker
+
+    # A worker as the command starts one (this process as its owner): two trials more, under
+    # the same HPO run, drawn from its own stream (not the command's values again).
+    env = {**os.environ, parallel.WORKER_ENV: hpo.info.run_id, parallel.INDEX_ENV: "1",
+           parallel.OWNER_ENV: str(os.getpid())}  # fmt: skip
+    line = [sys.executable, "-m", "armexp", "hpo", "hpo=smoke", f"hpo.n_trials={held + 2}", *TINY,
+            where]  # fmt: skip
+    assert subprocess.run(line, env=env, capture_output=True, timeout=600).returncode == 0
+    after = _study(runs_dir)
+    joined = [t for t in after.trials if t.user_attrs[parallel.PROCESS_ATTR] == 1]
+    assert len(after.trials) == held + 2 and len(joined) >= 2
+    assert {t.state.name for t in after.trials} == {"COMPLETE"}
+    values = [tuple(sorted(t.params.items())) for t in after.trials]
+    assert len(set(values)) == len(values)
+    trials = stage_runs(runs_dir, "trial")
+    assert len(trials) == held + 2 and {t.data.tags[PARENT_TAG] for t in trials} == {
+        hpo.info.run_id
+    }
+    assert len(stage_runs(runs_dir, "train")) == 2 * (held + 2)
 
 
 @pytest.mark.slow

@@ -7,8 +7,8 @@ RUNNING, opens the HPO run and writes its files) and starts ``n_jobs - 1`` copie
 command line as workers. A worker knows the HPO run from its environment, hangs its trials under
 it, and pruning compares every process's trials through the database. A worker stops asking for
 trials once the owner has ended; the owner waits for its workers before it closes the HPO run, and
-a signal to the owner reaches them (each marks its trial interrupted, so the next command queues it
-again).
+passes a signal it gets on to them (each marks its trial interrupted, so the next command queues
+it again).
 """
 
 from __future__ import annotations
@@ -103,5 +103,8 @@ def start(n_jobs: int, hpo_run: str, overrides: list[str]) -> Workers:
             *(o for o in overrides if not o.startswith("hydra.run.dir=")),
             *(f"{o}/worker-{i}" for o in overrides if o.startswith("hydra.run.dir=")),
         ]
-        out.procs.append(subprocess.Popen([sys.executable, "-m", "armexp", "hpo", *line], env=env))
+        # A session of its own: a Ctrl-C at the terminal reaches the command alone, which
+        # passes one SIGINT on (`Workers.stop`); a second one would cut the worker's clean-up.
+        command = [sys.executable, "-m", "armexp", "hpo", *line]
+        out.procs.append(subprocess.Popen(command, env=env, start_new_session=True))
     return out
