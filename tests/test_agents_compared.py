@@ -49,3 +49,17 @@ def test_two_agents_are_compared_on_steps_to_90_percent_success_and_tasks(tmp_pa
 
     # One agent: nothing to compare, no table.
     assert not (_report(runs, [aided_eval], "one") / "agents.md").exists()
+
+
+def test_an_agent_the_command_names_is_an_agent_of_its_own(runs_dir: Path) -> None:
+    """agent.name=… on a preset's changed values: the train run, its name and the report call it
+    so (a study comparing it with the preset it came from keeps them apart)."""
+    from tests.helpers import SMALL_TRAIN, stage_runs
+
+    args = ["train", *SMALL_TRAIN, "agent.name=sac_smoke_best", "agent.learning_rate=0.002",
+            "train.gains=config", "controller.gains=paper",
+            f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+    assert main(args) == 0
+    (run,) = stage_runs(runs_dir, "train")
+    assert run.data.tags["armexp.agent_preset"] == "sac_smoke_best"
+    assert run.data.tags["mlflow.runName"] == "train-sac_smoke_best-s0"

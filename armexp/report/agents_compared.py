@@ -60,7 +60,7 @@ def agents_table(
     ]
     return Table(
         "agents",
-        "What the aids buy: the agents side by side",
+        "The agents side by side (what the aids buy)",
         pd.DataFrame([shown for shown, _ in rows]),
         pd.DataFrame([numbers for _, numbers in rows]),
         notes,

@@ -99,22 +99,11 @@ def controller_gains_for(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, str
 
 
 def _agent_preset(cfg: DictConfig) -> str:
-    """The ``agent`` config group option this run composed (its name when run outside Hydra,
-    or when a study put another preset in place of the job's, `armexp.stages.study`)."""
-    from hydra.core.hydra_config import HydraConfig
-
-    name = str(cfg.agent.name)
-    if HydraConfig.initialized():
-        choice = HydraConfig.get().runtime.choices.get("agent")
-        if choice and (choice == name or not _is_preset(name)):
-            return str(choice)
-    return name
-
-
-def _is_preset(name: str) -> bool:
-    from armexp.config import group_options
-
-    return name in group_options("agent")
+    """The agent's name in runs and reports: ``agent.name``, which is the ``agent`` config group
+    option it composed unless a study put another preset in its place
+    (`armexp.stages.study`) or the command named it (``agent.name=sac_plain_hpo``: a preset's
+    values changed, compared in a report as an agent of its own)."""
+    return str(cfg.agent.name)
 
 
 def step_budget(cfg: DictConfig) -> int:
