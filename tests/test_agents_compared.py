@@ -45,7 +45,7 @@ def test_two_agents_are_compared_on_steps_to_90_percent_success_and_tasks(tmp_pa
     assert aided.tasks_reached_iqm == 4
     shown = (tables / "agents.md").read_text()
     assert "| 100 k (1 of 1 runs) |" in shown and "| not reached (0 of 1) |" in shown
-    assert "agents" in (tables.parent / "index.html").read_text()
+    assert "The agents side by side" in (tables.parent / "index.html").read_text()
 
     # One agent: nothing to compare, no table.
     assert not (_report(runs, [aided_eval], "one") / "agents.md").exists()
