@@ -193,6 +193,19 @@ def test_a_compiled_model_saved_loaded_and_continued_is_the_model_continued_in_p
             assert all(torch.equal(got_state[index][k], want[k]) for k in want)
 
 
+def test_one_process_compiles_the_update_of_model_after_model_without_a_recompile_limit() -> None:
+    """An HPO trains trial after trial in one process: each model's update compiles against a
+    limit of its own (one here), not against a count shared by every model the process made."""
+    with torch._dynamo.config.patch(recompile_limit=1):
+        for seed in range(3):
+            model = _filled("compiled", ["agent.ent_coef=auto", "agent.n_steps=1"])
+            model._compiled = CompiledUpdate(model, backend="eager")  # Dynamo without inductor
+            before = [p.detach().clone() for p in model.actor.parameters()]
+            _train(model, 2, seed)
+            after = list(model.actor.parameters())
+            assert not all(torch.equal(a, b) for a, b in zip(before, after, strict=True))
+
+
 def test_a_call_runs_the_graph_of_at_most_two_steps_as_often_as_it_needs() -> None:
     assert [steps_per_graph(n) for n in (1, 2, 3, 4, 7, 8)] == [1, 2, 1, 2, 1, 2]
 

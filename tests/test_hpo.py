@@ -208,6 +208,31 @@ def test_a_trial_left_running_by_a_killed_process_is_failed_and_run_again(runs_d
     assert len(_study(runs_dir, "killed").trials) == 2
 
 
+def test_a_trial_that_failed_on_its_own_runs_again_only_when_asked(runs_dir: Path) -> None:
+    """A failed trial counts as done; ``hpo.retry_failed=true`` queues its values again once
+    (a failure since fixed), and the retry then counts in its place."""
+    where = f"tracking.runs_dir={runs_dir}"
+    runs_dir.mkdir(parents=True)
+    url = f"sqlite:///{runs_dir.resolve() / study.OPTUNA_DB}"
+    broken = optuna.create_study(storage=url, study_name="broken", direction="maximize")
+    trial = broken.ask()
+    values = {"agent.learning_rate": trial.suggest_float("agent.learning_rate", 1e-4, 1e-2,
+                                                        log=True),
+              "agent.gamma": trial.suggest_float("agent.gamma", 0.9, 0.999)}  # fmt: skip
+    broken.tell(trial, state=optuna.trial.TrialState.FAIL)
+    args = ["hpo", "hpo=smoke", "hpo.study_name=broken", "hpo.n_trials=1", *TINY, where]
+
+    assert main(args) == 0
+    assert [t.state.name for t in _study(runs_dir, "broken").trials] == ["FAIL"]
+    assert main([*args, "hpo.retry_failed=true"]) == 0
+    after = _study(runs_dir, "broken")
+    assert [t.state.name for t in after.trials] == ["FAIL", "COMPLETE"]
+    assert after.trials[1].user_attrs[study.RETRY_OF] == 0
+    assert after.trials[1].params == values
+    assert main([*args, "hpo.retry_failed=true"]) == 0  # retried once: nothing run again
+    assert len(_study(runs_dir, "broken").trials) == 2
+
+
 def test_a_study_another_process_runs_is_refused(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -25,6 +25,7 @@ disk, `armexp.jit_cache`); `CompiledUpdate.supports` names what it leaves out.
 from __future__ import annotations
 
 import math
+import types
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -94,6 +95,21 @@ LOGGED = ("ent_coef", "ent_coef_loss", "critic_loss", "actor_loss")
 MAX_STEPS_PER_GRAPH = 2
 
 
+def own_code(method: Callable[..., Any]) -> Callable[..., Any]:
+    """``method`` bound to a copy of its function with a code object of its own.
+
+    Dynamo keeps compiled graphs, and counts recompilations against its limit, per code object:
+    compiling the one shared ``steps`` of every update would add a graph per model to one cache,
+    so a process that trains many models (an HPO's trials, a study) would hit the limit and fail
+    (``fullgraph``). A code object per update gives each its own cache, which goes with it.
+    """
+    fn = method.__func__  # type: ignore[attr-defined]
+    copy = types.FunctionType(
+        fn.__code__.replace(), fn.__globals__, fn.__name__, fn.__defaults__, fn.__closure__
+    )
+    return types.MethodType(copy, method.__self__)  # type: ignore[attr-defined]
+
+
 def steps_per_graph(gradient_steps: int) -> int:
     """The largest divisor of ``gradient_steps`` up to `MAX_STEPS_PER_GRAPH`: every call of a
     run then uses one graph, compiled once."""
@@ -146,7 +162,9 @@ class CompiledUpdate:
         self.target_names = [k for k, _ in model.critic_target.named_parameters()]
         self.target_params = list(model.critic_target.parameters())
         self.fn: Callable[..., Any] = (
-            self.steps if mode == "eager" else torch.compile(self.steps, mode=mode, **options)
+            self.steps
+            if mode == "eager"
+            else torch.compile(own_code(self.steps), mode=mode, **options)
         )
 
     @staticmethod

@@ -257,6 +257,9 @@ class HpoStageConfig:
     storage: str | None = None
     #: The trials the study holds when the command ends (finished, pruned or failed).
     n_trials: int = checked(20, at_least(1))
+    #: Queue every trial that failed on its own again, once, with its values (a failure since
+    #: fixed); false: a failed trial counts as done, as Optuna counts it.
+    retry_failed: bool = False
     #: Processes asking for trials at once (Optuna's parallel search: the command and
     #: ``n_jobs - 1`` copies of it sharing the study; `armexp.hpo.parallel`).
     n_jobs: int = checked(1, at_least(1))

@@ -85,6 +85,7 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
     previous = resumable(client, the_study.user_attrs.get(study.HPO_RUN_ATTR), name)
     again = study.recover(the_study)
     record.mark_interrupted(client, the_study, again)
+    failed = study.retry_failed(the_study) if h.retry_failed else []
     tags = record.hpo_tags(name, url, str(h.pruner.name))
     with stage_runs.stage_run(
         cfg, "hpo", run_name=h.run_name or name, extra_tags=tags, resume_run_id=previous
@@ -96,6 +97,7 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
             f"hpo: study {name} in {store.hide_password(url)} | HPO run {hpo_run} | "
             f"{done} of {h.n_trials} trials done"
             + (f", trials {', '.join(map(str, again))} interrupted: queued again" if again else "")
+            + (f", failed trials {', '.join(map(str, failed))} queued again" if failed else "")
         )
         about = {"study": name, "storage": store.hide_password(url),
                  "direction": "maximize", "n_trials": int(h.n_trials), "seeds": seeds,
@@ -110,9 +112,9 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
         except BaseException:
             workers.stop()
             raise
-        failed = [i for i, code in enumerate(workers.join(), 1) if code != 0]
-        if failed:
-            print(f"hpo: workers {failed} ended with an error (their Hydra logs say why)")
+        errors = [i for i, code in enumerate(workers.join(), 1) if code != 0]
+        if errors:
+            print(f"hpo: workers {errors} ended with an error (their Hydra logs say why)")
         record.snapshot(client, hpo_run, the_study, found, about)
         summary = _summary(the_study)
         best = summary.get("hpo/best_value")

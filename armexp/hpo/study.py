@@ -12,7 +12,8 @@ config apart from the searched keys and the seed, the search space, the seeds, t
 the same command finds the same study and runs only the trials still missing up to ``n_trials``
 (finished, pruned and failed trials all count). A trial left RUNNING by a process that died is
 marked FAIL (user attribute ``armexp.interrupted``) and queued again with the same parameters;
-it then does not count, its retry does.
+it then does not count, its retry does. With ``hpo.retry_failed=true`` a trial that failed on its
+own (an error in training, say one since fixed) is queued again the same way, once per command.
 """
 
 from __future__ import annotations
@@ -192,14 +193,38 @@ def recover(study: Any) -> list[int]:
     return again
 
 
-def counted(study: Any) -> int:
-    """Trials that count towards ``n_trials``: finished, pruned, or failed on their own."""
+def retry_failed(study: Any) -> list[int]:
+    """Queue again, with its parameters, every trial that failed on its own and has no retry
+    yet; the numbers queued. Call only when no other process runs this study."""
     from optuna.trial import TrialState
 
+    trials = study.get_trials(deepcopy=False)
+    retried = {t.user_attrs.get(RETRY_OF) for t in trials}
+    again = []
+    for t in trials:
+        if t.state == TrialState.FAIL and not t.user_attrs.get(INTERRUPTED):
+            if t.number not in retried:
+                study.enqueue_trial(t.params, user_attrs={RETRY_OF: t.number})
+                again.append(t.number)
+    return again
+
+
+def counted(study: Any) -> int:
+    """Trials that count towards ``n_trials``: finished, pruned, or failed on their own and not
+    queued again (a retried trial counts through its retry)."""
+    from optuna.trial import TrialState
+
+    trials = study.get_trials(deepcopy=False)
+    retried = {t.user_attrs.get(RETRY_OF) for t in trials}
     done = (TrialState.COMPLETE, TrialState.PRUNED)
     return sum(
-        t.state in done or (t.state == TrialState.FAIL and not t.user_attrs.get(INTERRUPTED))
-        for t in study.get_trials(deepcopy=False)
+        t.state in done
+        or (
+            t.state == TrialState.FAIL
+            and not t.user_attrs.get(INTERRUPTED)
+            and t.number not in retried
+        )
+        for t in trials
     )
 
 

@@ -125,6 +125,7 @@ def run_sweep(sweeper: Any, arguments: list[str]) -> Any:
     the_study.set_user_attr(study.HPO_RUN_ATTR, hpo_run)
     again = study.recover(the_study)
     record.mark_interrupted(client, the_study, again)
+    failed = study.retry_failed(the_study) if cfg.hpo.retry_failed else []
     about = {"study": the_study.study_name, "storage": store.hide_password(
         str(sweeper.storage)), "direction": str(sweeper.direction), "n_trials":
         int(sweeper.n_trials), "seeds": seeds, "sampler": str(chosen_sampler.get("_target_")),
@@ -133,6 +134,7 @@ def run_sweep(sweeper: Any, arguments: list[str]) -> Any:
         f"armexp train: study {the_study.study_name} | {study.counted(the_study)} of "
         f"{sweeper.n_trials} trials done"
         + (f", trials {', '.join(map(str, again))} interrupted: queued again" if again else "")
+        + (f", failed trials {', '.join(map(str, failed))} queued again" if failed else "")
     )
     swept = "tracking.swept=[" + ",".join(f"'{k}'" for k in found.distributions) + "]"
     returns: list[Any] = []
