@@ -49,6 +49,9 @@ class AidDeclaration:
     #: The ``agent.algo`` values it applies to; another is refused before a run starts
     #: (`armexp.config.check_aid`).
     algorithms: frozenset[str] = ALL_ALGORITHMS
+    #: What in the ``agent`` config it cannot work with: None, or that key, its value and what
+    #: to give instead (one phrase), checked before a run starts.
+    conflicts: Callable[[Mapping[str, Any]], str | None] = lambda agent: None
 
 
 DEMONSTRATIONS = AidDeclaration(
@@ -81,8 +84,21 @@ CURRICULUM = AidDeclaration(
         f"workspace by {number_arg(a, 'full_at') * 100:g} % of the budget"
     ),
 )  # fmt: skip
+HER = AidDeclaration(
+    "her", "armexp.agents.relabel.GoalRelabelling", False, "goal relabelling (HER)",
+    lambda a: (
+        f"hindsight goal relabelling: {number_arg(a, 'ratio') * 100:g} % of each batch toward a "
+        "tip reached later in the episode, rewarded by the environment's own function"
+    ),
+    OFF_POLICY,  # it relabels a replay buffer
+    lambda agent: (
+        None if int(agent.get("n_steps", 1)) == 1 else
+        f"agent.n_steps={agent.get('n_steps')}: HER relabels one-step rewards (an n-step "
+        "buffer's sums were taken toward the old target); set agent.n_steps=1"
+    ),
+)  # fmt: skip
 #: Every aid, in the order the presets list them.
-AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM)
+AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, HER)
 
 
 def declared(target: str) -> AidDeclaration | None:

@@ -293,6 +293,7 @@ def _agent_checks(cfg: DictConfig) -> None:
                 "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
         _check_aid_target(f"agent.aids.{name}", target, algo)
+        _check_aid_conflicts(f"agent.aids.{name}", target, agent)
     if agent.get("privileged") is False:
         _non_privileged(cfg)
 
@@ -338,6 +339,16 @@ def _rollout_fits(agent: DictConfig) -> None:
             f"{agent.n_envs} and agent.max_env_steps={cap}: one PPO rollout ({rollout} steps) "
             f"must fit the budget, so give agent.ppo.n_steps ≤ {int(cap) // int(agent.n_envs)}."
         )
+
+
+def _check_aid_conflicts(key: str, target: str, agent: DictConfig) -> None:
+    """A declared aid that cannot work with another of the agent's settings is refused."""
+    from armexp import aids
+
+    declaration = aids.declared(target)
+    why = declaration.conflicts(agent) if declaration is not None else None
+    if why is not None:
+        raise ConfigError(f"{key} is not allowed with {why}.")
 
 
 def _check_aid_target(key: str, target: str, algo: str) -> None:

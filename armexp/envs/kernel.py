@@ -40,6 +40,44 @@ def segment_enters(x0: float, y0: float, x1: float, y1: float, obstacles: np.nda
 
 
 @njit(cache=True)
+def task_reward(
+    prev_error: float, error: float, collided: bool, outside: bool, params: np.ndarray
+) -> tuple[float, int]:
+    """Table I's reward and the step's status, from the tip's target error before and after the
+    step and whether its path entered an obstacle or a joint left its limits. The checks run in
+    the order collision, joint limit, reach, so a step that collides while reaching is a
+    collision."""
+    if collided:
+        return -params[P_COLLISION], COLLISION
+    if outside:
+        return -params[P_BOUNDARY], JOINT_LIMIT
+    if error < params[P_THRESHOLD]:
+        return params[P_REACH], REACHED
+    reward = -math.log10(1.0 + error - params[P_THRESHOLD])
+    if error > prev_error:
+        reward -= params[P_GROWTH]
+    return reward, RUNNING
+
+
+@njit(cache=True)
+def goal_rewards(
+    prev_tips: np.ndarray, tips: np.ndarray, goals: np.ndarray, params: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`task_reward` of steps that neither collided nor left the limits, for other targets: the
+    tip at each step's start and end (k, 2) and a target each (k, 2); (rewards, reached)."""
+    k = goals.shape[0]
+    rewards = np.empty(k)
+    reached = np.zeros(k, dtype=np.bool_)
+    for i in range(k):
+        gx, gy = goals[i, 0], goals[i, 1]
+        before = math.hypot(prev_tips[i, 0] - gx, prev_tips[i, 1] - gy)
+        after = math.hypot(tips[i, 0] - gx, tips[i, 1] - gy)
+        rewards[i], status = task_reward(before, after, False, False, params)
+        reached[i] = status == REACHED
+    return rewards, reached
+
+
+@njit(cache=True)
 def observe(
     q: np.ndarray,
     tip: np.ndarray,
@@ -102,8 +140,8 @@ def env_step(
     (`armexp.sim.simulator.Simulator.kernel_args`); ``hold`` controller steps run towards the
     clipped ``action`` scaled by ``bound``.
 
-    Returns (reward, status, controller steps completed, tip error). The checks run in the order
-    collision, joint limit, reach, so a step that collides while reaching is a collision.
+    Returns (reward, status, controller steps completed, tip error); `task_reward` gives the
+    reward and status of a step that did not diverge.
     """
     n = state.shape[0] // 4
     dqd = np.empty(n)
@@ -128,18 +166,7 @@ def env_step(
         for j in range(n):
             if q[j] < lower[j] or q[j] > upper[j]:
                 outside = True
-        if segment_enters(x0, y0, tip[0], tip[1], obstacles):
-            status = COLLISION
-            reward = -params[P_COLLISION]
-        elif outside:
-            status = JOINT_LIMIT
-            reward = -params[P_BOUNDARY]
-        elif error < params[P_THRESHOLD]:
-            status = REACHED
-            reward = params[P_REACH]
-        else:
-            reward = -math.log10(1.0 + error - params[P_THRESHOLD])
-            if error > prev_error:
-                reward -= params[P_GROWTH]
+        collided = segment_enters(x0, y0, tip[0], tip[1], obstacles)
+        reward, status = task_reward(prev_error, error, collided, outside, params)
     observe(q, tip, target, obstacles, low, high, obs)
     return reward, status, done, error

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from armexp.envs.geometry import Array, joint_positions, tips
-from armexp.envs.kernel import env_step, observe
+from armexp.envs.kernel import env_step, goal_rewards, observe
 from armexp.envs.observation import ObservationLayout
 from armexp.envs.render import Canvas
 from armexp.envs.workspace import (
@@ -112,6 +112,14 @@ class ReachSettings:
         )  # fmt: skip
 
 
+def reward_params(s: ReachSettings) -> np.ndarray:
+    """Table I's reward terms in `armexp.envs.kernel`'s parameter order (``P_*``)."""
+    return np.array(
+        [s.reach_threshold, s.reach_reward, s.boundary_penalty, s.collision_penalty,
+         s.growth_penalty]
+    )  # fmt: skip
+
+
 class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     """Reach a target with the arm's tip while the tip avoids circular obstacles.
 
@@ -184,10 +192,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         low, high = self.layout.bounds(self._lengths, self._lower, self._upper, self._obstacles)
         self.observation_space = spaces.Box(low.astype(np.float32), high.astype(np.float32))
         self._obs_low, self._obs_high = low, high
-        self._params = np.array(
-            [s.reach_threshold, s.reach_reward, s.boundary_penalty, s.collision_penalty,
-             s.growth_penalty]
-        )  # fmt: skip
+        self._params = reward_params(s)
         self._log_width = log_width(n)
         columns = trajectory_columns(n)
         self._tip_columns = [columns.index("tip_x"), columns.index("tip_y")]
@@ -259,6 +264,18 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         if truncated:
             self.reason = "time_limit"
         return obs, float(reward), terminated, truncated, self._info()
+
+    def goal_rewards(
+        self, prev_tips: np.ndarray, tips: np.ndarray, goals: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The rewards `step` gives, and whether it would end on reach, for steps that took the
+        tip from ``prev_tips`` to ``tips`` (k, 2) without a collision or a joint limit, had the
+        targets been ``goals`` (k, 2): goal relabelling (`armexp.agents.relabel`) with the
+        environment's own reward (`armexp.envs.kernel.task_reward`)."""
+        return goal_rewards(
+            np.asarray(prev_tips, np.float64), np.asarray(tips, np.float64),
+            np.asarray(goals, np.float64), self._params,
+        )  # fmt: skip
 
     def start_distances(self) -> np.ndarray:
         """Each workspace target's distance from the tip at the starting configuration (m)."""

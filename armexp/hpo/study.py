@@ -202,10 +202,10 @@ def retry_failed(study: Any) -> list[int]:
     retried = {t.user_attrs.get(RETRY_OF) for t in trials}
     again = []
     for t in trials:
-        if t.state == TrialState.FAIL and not t.user_attrs.get(INTERRUPTED):
-            if t.number not in retried:
-                study.enqueue_trial(t.params, user_attrs={RETRY_OF: t.number})
-                again.append(t.number)
+        own_failure = t.state == TrialState.FAIL and not t.user_attrs.get(INTERRUPTED)
+        if own_failure and t.number not in retried:
+            study.enqueue_trial(t.params, user_attrs={RETRY_OF: t.number})
+            again.append(t.number)
     return again
 
 
