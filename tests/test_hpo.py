@@ -48,6 +48,19 @@ def _client(runs: Path) -> MlflowClient:
     return MlflowClient(f"sqlite:///{runs}/mlflow.db")
 
 
+def _asked(runs: Path, name: str) -> tuple[Any, Any, dict[str, float]]:
+    """A new study ``name`` in ``runs`` with one trial asked for hpo=smoke's two values: the
+    study, the trial and its values."""
+    runs.mkdir(parents=True)
+    url = f"sqlite:///{runs.resolve() / study.OPTUNA_DB}"
+    created = optuna.create_study(storage=url, study_name=name, direction="maximize")
+    trial = created.ask()
+    values = {"agent.learning_rate": trial.suggest_float("agent.learning_rate", 1e-4, 1e-2,
+                                                        log=True),
+              "agent.gamma": trial.suggest_float("agent.gamma", 0.9, 0.999)}  # fmt: skip
+    return created, trial, values
+
+
 def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_dir: Path) -> None:
     where = f"tracking.runs_dir={runs_dir}"
     assert main(["hpo", "hpo=smoke", *TINY, where]) == 0
@@ -182,13 +195,7 @@ def test_a_trial_left_running_by_a_killed_process_is_failed_and_run_again(runs_d
     MLflow: the same command marks the trial FAIL (interrupted) and runs its values again, in
     the same HPO run; the interrupted trial does not count towards n_trials."""
     where = f"tracking.runs_dir={runs_dir}"
-    runs_dir.mkdir(parents=True)
-    url = f"sqlite:///{runs_dir.resolve() / study.OPTUNA_DB}"
-    killed = optuna.create_study(storage=url, study_name="killed", direction="maximize")
-    trial = killed.ask()
-    values = {"agent.learning_rate": trial.suggest_float("agent.learning_rate", 1e-4, 1e-2,
-                                                        log=True),
-              "agent.gamma": trial.suggest_float("agent.gamma", 0.9, 0.999)}  # fmt: skip
+    killed, _, values = _asked(runs_dir, "killed")
     client = _client(runs_dir)
     experiment = client.create_experiment("armexp")
     gone = f"{liveness.socket.gethostname()}:1:0"  # pid 1 with another start: a process gone
@@ -212,13 +219,7 @@ def test_a_trial_that_failed_on_its_own_runs_again_only_when_asked(runs_dir: Pat
     """A failed trial counts as done; ``hpo.retry_failed=true`` queues its values again once
     (a failure since fixed), and the retry then counts in its place."""
     where = f"tracking.runs_dir={runs_dir}"
-    runs_dir.mkdir(parents=True)
-    url = f"sqlite:///{runs_dir.resolve() / study.OPTUNA_DB}"
-    broken = optuna.create_study(storage=url, study_name="broken", direction="maximize")
-    trial = broken.ask()
-    values = {"agent.learning_rate": trial.suggest_float("agent.learning_rate", 1e-4, 1e-2,
-                                                        log=True),
-              "agent.gamma": trial.suggest_float("agent.gamma", 0.9, 0.999)}  # fmt: skip
+    broken, trial, values = _asked(runs_dir, "broken")
     broken.tell(trial, state=optuna.trial.TrialState.FAIL)
     args = ["hpo", "hpo=smoke", "hpo.study_name=broken", "hpo.n_trials=1", *TINY, where]
 
