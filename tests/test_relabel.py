@@ -15,7 +15,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from armexp import aids
 from armexp.agents.addons import TrainingContext
-from armexp.agents.relabel import GoalRelabelling, GoalRewards, RelabellingReplayBuffer
+from armexp.agents.relabel import GoalRelabelling, RelabellingReplayBuffer
 from armexp.cli import main
 from armexp.config import ConfigError, compose_config
 from armexp.envs.factory import settings_from_config
@@ -33,9 +33,8 @@ def settings() -> ReachSettings:
 
 def _buffer(env: ReachEnv | Any, settings: ReachSettings, ratio: float = 0.8,
             n_envs: int = 1, size: int = 1000) -> RelabellingReplayBuffer:  # fmt: skip
-    params = reward_params(settings)
     return RelabellingReplayBuffer(size, env.observation_space, env.action_space,
-                                   GoalRewards(params), params, ratio, "cpu", n_envs)  # fmt: skip
+                                   reward_params(settings), ratio, "cpu", n_envs)  # fmt: skip
 
 
 def _episode(env: ReachEnv, actions: np.ndarray, **reset: Any) -> dict[str, np.ndarray]:

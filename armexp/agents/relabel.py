@@ -38,45 +38,39 @@ KEY = "agent.aids.her"
 
 
 class RelabellingReplayBuffer(ReplayBuffer):
-    """SB3's replay buffer that remembers each transition's episode and relabels a share
-    ``ratio`` of every sample with a future achieved tip (module doc). ``goal_rewards`` is the
-    environment's (`ReachEnv.goal_rewards` signature), ``params`` its reward terms."""
+    """SB3's replay buffer that remembers where each transition's episode ends and relabels a
+    share ``ratio`` of every sample with a future achieved tip (module doc); ``params`` are the
+    environment's reward terms (`armexp.envs.reach.reward_params`), which its own reward
+    function (`armexp.envs.kernel.goal_rewards`, as `ReachEnv.goal_rewards` calls it) takes."""
 
     def __init__(
         self,
         buffer_size: int,
         observation_space: spaces.Space,
         action_space: spaces.Space,
-        goal_rewards: Any,
         params: np.ndarray,
         ratio: float = 0.8,
         device: torch.device | str = "auto",
         n_envs: int = 1,
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs)
-        self.goal_rewards = goal_rewards
+        self.params = np.asarray(params, dtype=np.float64)
         self.reach_reward = float(params[P_REACH])
         self.ratio = float(ratio)
-        #: Each stored transition's episode (an id per episode, across environments) and the
-        #: position of its episode's last transition (-1 while the episode runs).
-        self.episode = np.full((self.buffer_size, n_envs), -1, dtype=np.int64)
+        #: The position of each stored transition's episode's last transition (-1 while the
+        #: episode runs), and where each environment's running episode started.
         self.last = np.full((self.buffer_size, n_envs), -1, dtype=np.int64)
-        self._running = np.arange(n_envs, dtype=np.int64)
         self._start = np.zeros(n_envs, dtype=np.int64)
-        self._next_id = n_envs
 
     def add(self, obs: np.ndarray, next_obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
             done: np.ndarray, infos: list[dict[str, Any]]) -> None:  # fmt: skip
         pos = self.pos
-        self.episode[pos] = self._running
         self.last[pos] = -1
         super().add(obs, next_obs, action, reward, done, infos)
         for e in np.flatnonzero(np.asarray(done)):
             length = (pos - self._start[e]) % self.buffer_size + 1
             rows = (self._start[e] + np.arange(length)) % self.buffer_size
             self.last[rows, e] = pos
-            self._running[e] = self._next_id
-            self._next_id += 1
             self._start[e] = self.pos
 
     def _future(self, rows: np.ndarray, envs: np.ndarray) -> np.ndarray:
@@ -121,7 +115,10 @@ class RelabellingReplayBuffer(ReplayBuffer):
             o[:, TARGET] = goals
             o[:, OFFSET] = o[:, TIP] - goals
         failed = (terminated > 0) & (rewards != np.float32(self.reach_reward))
-        new, reached = self.goal_rewards(obs[:, TIP], next_obs[:, TIP], goals)
+        new, reached = goal_rewards(
+            obs[:, TIP].astype(np.float64), next_obs[:, TIP].astype(np.float64),
+            np.asarray(goals, np.float64), self.params,
+        )  # fmt: skip
         rewards = np.where(failed, rewards, new).astype(np.float32)
         ended = np.where(failed, 1.0, reached).astype(np.float32)
         return obs, next_obs, rewards, ended
@@ -157,27 +154,9 @@ class GoalRelabelling(TrainingAddOn):
             )
         model.replay_buffer = RelabellingReplayBuffer(
             old.buffer_size * old.n_envs, model.observation_space, model.action_space,
-            GoalRewards(reward_params(ctx.settings)), reward_params(ctx.settings), self.ratio,
-            old.device, old.n_envs,
+            reward_params(ctx.settings), self.ratio, old.device, old.n_envs,
         )  # fmt: skip
         return []
 
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         return {"final/her_ratio": self.ratio}
-
-
-class GoalRewards:
-    """`ReachEnv.goal_rewards` in this process, for the replay buffer: the environment's own
-    function (`armexp.envs.kernel.goal_rewards`) with its reward terms."""
-
-    def __init__(self, params: np.ndarray) -> None:
-        self.params = np.asarray(params, dtype=np.float64)
-
-    def __call__(
-        self, prev_tips: np.ndarray, tips: np.ndarray, goals: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        result: tuple[np.ndarray, np.ndarray] = goal_rewards(
-            np.asarray(prev_tips, np.float64), np.asarray(tips, np.float64),
-            np.asarray(goals, np.float64), self.params,
-        )  # fmt: skip
-        return result

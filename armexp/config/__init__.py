@@ -292,8 +292,7 @@ def _agent_checks(cfg: DictConfig) -> None:
                     spec, DictConfig) else spec,
                 "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
-        _check_aid_target(f"agent.aids.{name}", target, algo)
-        _check_aid_conflicts(f"agent.aids.{name}", target, agent)
+        _check_aid_target(f"agent.aids.{name}", target, agent)
     if agent.get("privileged") is False:
         _non_privileged(cfg)
 
@@ -341,19 +340,10 @@ def _rollout_fits(agent: DictConfig) -> None:
         )
 
 
-def _check_aid_conflicts(key: str, target: str, agent: DictConfig) -> None:
-    """A declared aid that cannot work with another of the agent's settings is refused."""
-    from armexp import aids
-
-    declaration = aids.declared(target)
-    why = declaration.conflicts(agent) if declaration is not None else None
-    if why is not None:
-        raise ConfigError(f"{key} is not allowed with {why}.")
-
-
-def _check_aid_target(key: str, target: str, algo: str) -> None:
-    """`check_aid` for the add-on class ``target`` names: a declared aid's algorithms from its
-    declaration (`armexp.aids`, no agent code imported), another add-on's from its class; one
+def _check_aid_target(key: str, target: str, agent: DictConfig) -> None:
+    """`check_aid` for the add-on class ``target`` names under the ``agent`` config: a declared
+    aid's algorithms and conflicts from its declaration (`armexp.aids`, no agent code imported),
+    another add-on's algorithms from its class; one
     that cannot be imported is left to building it, which says why
     (`armexp.agents.addons.build_addons`)."""
     from hydra.utils import get_class
@@ -361,9 +351,13 @@ def _check_aid_target(key: str, target: str, algo: str) -> None:
     from armexp import aids
 
     name = target.rpartition(".")[2]
+    algo = str(agent.get("algo", "sac"))
     declaration = aids.declared(target)
     if declaration is not None:
         check_aid(key, name, declaration.algorithms, algo)
+        why = declaration.conflicts(agent)
+        if why is not None:
+            raise ConfigError(f"{key} is not allowed with {why}.")
         return
     try:
         kind = get_class(target)

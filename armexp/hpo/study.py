@@ -183,27 +183,27 @@ def recover(study: Any) -> list[int]:
         trial_id = storage.get_trial_id_from_study_id_trial_number(study_id, t.number)
         storage.set_trial_user_attr(trial_id, INTERRUPTED, True)
         storage.set_trial_state_values(trial_id, TrialState.FAIL)
-    trials = study.get_trials(deepcopy=False)
-    retried = {t.user_attrs.get(RETRY_OF) for t in trials}
-    again = []
-    for t in trials:
-        if t.state == TrialState.FAIL and t.user_attrs.get(INTERRUPTED) and t.number not in retried:
-            study.enqueue_trial(t.params, user_attrs={RETRY_OF: t.number})
-            again.append(t.number)
-    return again
+    return _queue_again(study, interrupted=True)
 
 
 def retry_failed(study: Any) -> list[int]:
     """Queue again, with its parameters, every trial that failed on its own and has no retry
     yet; the numbers queued. Call only when no other process runs this study."""
+    return _queue_again(study, interrupted=False)
+
+
+def _queue_again(study: Any, interrupted: bool) -> list[int]:
+    """Enqueue the values of every FAIL trial, interrupted or failed on its own as asked, that
+    no trial retries yet; the numbers queued."""
     from optuna.trial import TrialState
 
     trials = study.get_trials(deepcopy=False)
     retried = {t.user_attrs.get(RETRY_OF) for t in trials}
     again = []
     for t in trials:
-        own_failure = t.state == TrialState.FAIL and not t.user_attrs.get(INTERRUPTED)
-        if own_failure and t.number not in retried:
+        if t.state != TrialState.FAIL or t.number in retried:
+            continue
+        if bool(t.user_attrs.get(INTERRUPTED)) == interrupted:
             study.enqueue_trial(t.params, user_attrs={RETRY_OF: t.number})
             again.append(t.number)
     return again
