@@ -97,8 +97,18 @@ HER = AidDeclaration(
         "buffer's sums were taken toward the old target); set agent.n_steps=1"
     ),
 )  # fmt: skip
+COLOURED_NOISE = AidDeclaration(
+    "coloured_noise", "armexp.agents.exploration.ColouredNoise", False,
+    "coloured-noise exploration",
+    lambda a: (
+        f"rollout actions sampled with coloured noise (exponent {number_arg(a, 'beta'):g}) instead "
+        "of white"
+    ),
+    frozenset({"sac", "tqc", "crossq"}),  # a squashed-Gaussian actor whose samples it colours
+)  # fmt: skip
+
 #: Every aid, in the order the presets list them.
-AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, HER)
+AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, HER, COLOURED_NOISE)
 
 
 def declared(target: str) -> AidDeclaration | None:
