@@ -2,9 +2,10 @@
 its training actions with coloured noise instead of white.
 
 An action is a joint velocity held for one 30 ms step, within Table II's small bounds, so the
-white noise of a Gaussian policy averages out within a few steps: the joint moves a random walk of
-a hundredth of a radian while a target below the base needs the forearm swung through more than
-three radians, away from the target first (docs/plain_agent.md). Noise whose power grows toward
+white noise of a Gaussian policy averages out: over 100 steps, noise of scale σ moves the elbow
+(0.4 rad/s) a random walk of 0.12σ rad, against 1.2σ rad for noise that keeps its direction, while
+a target below the base needs the forearm swung through more than three radians
+(docs/plain_agent.md). Noise whose power grows toward
 low frequencies (``beta`` 1: pink, 2: red) keeps a direction for many steps, so exploration can
 follow such a detour to its end. Eberhard et al., "Pink Noise Is All You Need: Colored Noise
 Exploration in Deep Reinforcement Learning", ICLR 2023; the noise process is theirs
