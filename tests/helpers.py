@@ -26,6 +26,13 @@ SMALL_TRAIN = [
 ]
 
 
+def plain_train(runs_dir: Path, *overrides: str) -> list[str]:
+    """`armexp train` arguments for ``SMALL_TRAIN`` as a non-privileged preset with the paper's
+    gains, stored under ``runs_dir``, with ``overrides`` (an aid, say) after them."""
+    return ["train", *SMALL_TRAIN, "agent.privileged=false", "train.gains=config",
+            "controller.gains=paper", *overrides, f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+
+
 def row_at(frame: pd.DataFrame, key: tuple[Any, ...]) -> pd.Series:
     """The row of ``frame`` at ``key`` on its MultiIndex: pandas-stubs types
     ``frame.loc[(a, b)]`` as the cell at row a, column b."""

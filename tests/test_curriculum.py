@@ -18,7 +18,7 @@ from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import tips
 from armexp.envs.reach import ReachEnv, ReachSettings
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import plain_train, stage_runs
 
 CURRICULUM = (
     "+agent.aids.curriculum={_target_:armexp.agents.curriculum.TargetCurriculum,"
@@ -76,8 +76,6 @@ def test_the_reach_widens_with_the_budget_to_the_whole_workspace(settings: Reach
 
 def test_a_non_privileged_preset_trains_with_the_curriculum(runs_dir: Path) -> None:
     assert aids.CURRICULUM.privileged is False
-    args = ["train", *SMALL_TRAIN, "agent.privileged=false", "train.gains=config",
-            "controller.gains=paper", CURRICULUM, f"tracking.runs_dir={runs_dir}"]  # fmt: skip
-    assert main(args) == 0
+    assert main(plain_train(runs_dir, CURRICULUM)) == 0
     (run,) = stage_runs(runs_dir, "train")
     assert run.data.metrics["final/curriculum_reach"] == 0.0  # the whole workspace by the end

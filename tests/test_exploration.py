@@ -19,7 +19,7 @@ from armexp.cli import main
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv, ReachSettings
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import plain_train, stage_runs
 
 COLOURED = "+agent.aids.coloured_noise={_target_:armexp.agents.exploration.ColouredNoise,beta:1}"
 N_ENVS = 4
@@ -81,9 +81,7 @@ def test_a_non_privileged_preset_trains_with_coloured_noise_and_others_are_refus
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert aids.COLOURED_NOISE.privileged is False
-    where = f"tracking.runs_dir={runs_dir}"
-    base = ["train", *SMALL_TRAIN, "agent.privileged=false", "train.gains=config",
-            "controller.gains=paper", where]  # fmt: skip
+    base = plain_train(runs_dir)
     assert main([*base, COLOURED]) == 0
     (run,) = stage_runs(runs_dir, "train")
     assert run.data.params["agent.aids.coloured_noise.beta"] == "1"

@@ -21,7 +21,7 @@ from armexp.config import ConfigError, compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.observation import TARGET, TIP
 from armexp.envs.reach import ReachEnv, ReachSettings, reward_params
-from tests.helpers import SMALL_TRAIN, stage_runs
+from tests.helpers import plain_train, stage_runs
 
 HER = "+agent.aids.her={_target_:armexp.agents.relabel.GoalRelabelling,ratio:0.8}"
 
@@ -128,9 +128,7 @@ def test_her_trains_a_non_privileged_preset_and_is_refused_where_it_cannot_work(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert aids.HER.privileged is False
-    where = f"tracking.runs_dir={runs_dir}"
-    base = ["train", *SMALL_TRAIN, "agent.privileged=false", "train.gains=config",
-            "controller.gains=paper", HER, where]  # fmt: skip
+    base = plain_train(runs_dir, HER)
     assert main([*base, "agent.n_steps=1"]) == 0
     (run,) = stage_runs(runs_dir, "train")
     assert run.data.metrics["final/her_ratio"] == 0.8
