@@ -61,17 +61,19 @@ def test_every_agent_preset_trains_a_few_hundred_steps_through_the_train_stage(
 
 # ------------------------------------------------------------------------- the plain preset
 def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids() -> None:
+    with_aids = set()
     for preset in NON_PRIVILEGED:
         agent = compose_config([f"agent={preset}"]).agent
         assert agent.privileged is False, preset
-        if preset != "sac_plain_red":
-            assert dict(agent.aids) == {}, preset
-    # sac_plain_red is sac_plain plus red exploration noise, an aid declared not privileged.
+        for aid in agent.aids.values():
+            declaration = aids.declared(str(aid._target_))
+            assert declaration is not None and not declaration.privileged, preset
+            with_aids.add(preset)
+    # sac_plain_red is sac_plain plus red exploration noise; the others carry no aid.
+    assert with_aids == {"sac_plain_red"}
     red = compose_config(["agent=sac_plain_red"]).agent
     plain = compose_config(["agent=sac_plain"]).agent
     assert list(red.aids) == ["coloured_noise"] and red.aids.coloured_noise.beta == 2.0
-    declaration = aids.declared(str(red.aids.coloured_noise._target_))
-    assert declaration is not None and not declaration.privileged
     differs = {k for k in plain if k not in ("name", "aids") and red[k] != plain[k]}
     assert differs == set()
     # The aided presets are the ones that may use privileged knowledge.
