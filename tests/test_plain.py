@@ -22,7 +22,7 @@ from armexp.report.tables import changes, table_two
 from tests.helpers import stage_runs
 
 PRESETS = sorted(p.stem for p in (config_dir() / "agent").glob("*.yaml"))
-NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red"]
+NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red", "sac_plain_red_n10"]
 #: Small enough for seconds: tiny networks and batches, 100-step episodes, 300 steps. The
 #: eager update, because compiling the update takes a minute (tests/test_compiled_update.py
 #: covers it).
@@ -69,13 +69,16 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
             declaration = aids.declared(str(aid._target_))
             assert declaration is not None and not declaration.privileged, preset
             with_aids.add(preset)
-    # sac_plain_red is sac_plain plus red exploration noise; the others carry no aid.
-    assert with_aids == {"sac_plain_red"}
-    red = compose_config(["agent=sac_plain_red"]).agent
+    # sac_plain_red is sac_plain plus red exploration noise, sac_plain_red_n10 that with 10-step
+    # returns; the others carry no aid.
+    assert with_aids == {"sac_plain_red", "sac_plain_red_n10"}
     plain = compose_config(["agent=sac_plain"]).agent
-    assert list(red.aids) == ["coloured_noise"] and red.aids.coloured_noise.beta == 2.0
-    differs = {k for k in plain if k not in ("name", "aids") and red[k] != plain[k]}
-    assert differs == set()
+    for preset, changed in (("sac_plain_red", set()), ("sac_plain_red_n10", {"n_steps"})):
+        red = compose_config([f"agent={preset}"]).agent
+        assert list(red.aids) == ["coloured_noise"] and red.aids.coloured_noise.beta == 2.0
+        differs = {k for k in plain if k not in ("name", "aids") and red[k] != plain[k]}
+        assert differs == changed, preset
+    assert compose_config(["agent=sac_plain_red_n10"]).agent.n_steps == 10
     # The aided presets are the ones that may use privileged knowledge.
     assert compose_config(["agent=sac_quick"]).agent.privileged is True
 
@@ -222,13 +225,13 @@ def test_reproduce_runs_the_plain_rows_in_steps_beside_its_aided_agent() -> None
 
     cfg = compose_config(["experiment=reproduce"])
     others = {preset: (seeds, c.agent) for preset, seeds, c in agent_configs(cfg)}
-    assert set(others) == {"sac_plain_red", "sac_paper_fast"}
+    assert set(others) == {"sac_plain_red_n10", "sac_paper_fast"}
     study_seeds = set(cfg.pipeline.seeds)
     for seeds, agent in others.values():
         assert seeds <= study_seeds
         assert agent.max_env_steps == 1_000_000 and agent.max_minutes is None
         assert agent.privileged is False
-    assert len(others["sac_plain_red"][0]) >= 3 and len(others["sac_paper_fast"][0]) >= 2
+    assert len(others["sac_plain_red_n10"][0]) >= 3 and len(others["sac_paper_fast"][0]) >= 2
     # The study's agent.* settings stay sac_quick's own.
     assert others["sac_paper_fast"][1].gradients == "compiled"
     assert cfg.agent.name == "sac_quick" and cfg.agent.max_env_steps == 400_000
