@@ -97,6 +97,13 @@ HER = AidDeclaration(
         "buffer's sums were taken toward the old target); set agent.n_steps=1"
     ),
 )  # fmt: skip
+MISSED_TARGETS = AidDeclaration(
+    "missed_targets", "armexp.agents.curriculum.MissedTargets", False, "missed-target curriculum",
+    lambda a: (
+        f"{number_arg(a, 'share') * 100:g} % of training targets re-drawn among the last "
+        f"{int(number_arg(a, 'memory'))} the policy missed, per environment"
+    ),
+)  # fmt: skip
 COLOURED_NOISE = AidDeclaration(
     "coloured_noise", "armexp.agents.exploration.ColouredNoise", False,
     "coloured-noise exploration",
@@ -108,7 +115,8 @@ COLOURED_NOISE = AidDeclaration(
 )  # fmt: skip
 
 #: Every aid, in the order the presets list them.
-AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, HER, COLOURED_NOISE)
+AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS, HER,
+        COLOURED_NOISE)  # fmt: skip
 
 
 def declared(target: str) -> AidDeclaration | None:

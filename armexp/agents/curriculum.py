@@ -1,4 +1,4 @@
-"""A curriculum over target distance (the ``curriculum`` aid): training starts on the targets
+"""Curricula over the training targets. The ``curriculum`` aid: training starts on the targets
 near the arm's starting tip and widens to the whole workspace.
 
 Far targets, those below the base above all, need a long detour whose first moves take the tip
@@ -8,7 +8,8 @@ radius of the starting tip that grows linearly from ``start`` metres to the fart
 share ``full_at`` of the budget, then the whole workspace for the rest. It uses the Euclidean
 distance only, no planner and no obstacle knowledge (not privileged), and changes nothing but
 which training targets are drawn: the held-out checks and `armexp eval` draw from the whole
-workspace.
+workspace. The ``missed_targets`` aid (`MissedTargets`) draws again the targets the policy has
+missed, while it still misses them.
 """
 
 from __future__ import annotations
@@ -80,3 +81,52 @@ class TargetCurriculum(TrainingAddOn):
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         assert self.callback is not None
         return {"final/curriculum_reach": float(self.callback.reach or 0.0)}
+
+
+class RetryMissed(BaseCallback):
+    """Turns on the training environments' re-draws of missed targets
+    (`ReachEnv.set_target_retry`) when training starts."""
+
+    def __init__(self, share: float, memory: int) -> None:
+        super().__init__()
+        self.share, self.memory = share, memory
+
+    def _on_training_start(self) -> None:
+        self.training_env.env_method("set_target_retry", self.share, self.memory)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def retried(self) -> int:
+        """Training episodes whose target was a re-drawn miss, over every environment."""
+        return int(sum(self.training_env.get_attr("retried")))
+
+
+class MissedTargets(TrainingAddOn):
+    """A curriculum over the policy's own misses: each training environment remembers the last
+    ``memory`` targets whose episode ended without reaching them (a collision, a joint limit, the
+    time limit), forgets one once it is reached, and draws the next target among them at the
+    share ``share`` of resets; the others are drawn as without the aid. The targets the policy
+    has not learned come back while it still fails them (below the base, near it: the detour
+    docs/plain_agent.md describes), where a uniform draw shows each only as often as any other.
+    It reads the episode's outcome only, no planner and no obstacle knowledge (not privileged);
+    the held-out checks and `armexp eval` draw as always. ``final/retried_episodes`` counts the
+    re-drawn episodes. A resumed run starts with empty memories."""
+
+    declaration = aids.MISSED_TARGETS
+
+    def __init__(self, share: float, memory: int) -> None:
+        if not 0.0 < float(share) < 1.0:
+            raise ValueError(f"share={share} must be in (0, 1)")
+        if not int(memory) >= 1 or int(memory) != memory:
+            raise ValueError(f"memory={memory} must be a whole number of targets >= 1")
+        self.share, self.memory = float(share), int(memory)
+        self.callback: RetryMissed | None = None
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        self.callback = RetryMissed(self.share, self.memory)
+        return [self.callback]
+
+    def finish(self, ctx: TrainingContext) -> dict[str, float]:
+        assert self.callback is not None
+        return {"final/retried_episodes": float(self.callback.retried())}

@@ -8,6 +8,7 @@ one compiled call (`armexp.envs.kernel.env_step`, which runs `armexp.sim.simulat
 
 from __future__ import annotations
 
+import collections
 import itertools
 from dataclasses import dataclass, field
 from typing import Any
@@ -202,6 +203,13 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self.target = self.workspace.points[0].copy()
         #: Targets are drawn from these workspace points only (`set_target_reach`; None: all).
         self._near: np.ndarray | None = None
+        #: Recently missed training targets, re-drawn at the share `_retry_share` of resets
+        #: (`set_target_retry`; None: off). `_index`: the workspace point of this episode's
+        #: target (None when a task or an explicit target set it).
+        self._missed: collections.deque[int] | None = None
+        self._retry_share = 0.0
+        self._index: int | None = None
+        self.retried = 0
         self.tip = np.zeros(2)
         self.error = 0.0
         self.steps = 0
@@ -225,11 +233,11 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             self.target = np.asarray(self.settings.tasks[name], dtype=np.float64)
         elif options.get("target") is not None:
             self.target = np.asarray(options["target"], dtype=np.float64).reshape(2)
-        elif self._near is None:
-            self.target = self.workspace.sample(self.np_random)
         else:
-            pick = int(self._near[int(self.np_random.integers(len(self._near)))])
-            self.target = self.workspace.points[pick].copy()
+            self._index = self._draw_index()
+            self.target = self.workspace.points[self._index].copy()
+        if "task" in options or options.get("target") is not None:
+            self._index = None
         # The τ_d draws of the episode follow the env's seeded generator.
         q0 = self.settings.q0
         offset = options.get("reference_offset")
@@ -276,6 +284,33 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             np.asarray(prev_tips, np.float64), np.asarray(tips, np.float64),
             np.asarray(goals, np.float64), self._params,
         )  # fmt: skip
+
+    def _draw_index(self) -> int:
+        """The workspace point of a training target: a recently missed one at the share asked
+        (`set_target_retry`), else one within the reach (`set_target_reach`) or anywhere."""
+        rng = self.np_random
+        missed = self._missed
+        if missed is not None:
+            if self._index is not None and self.steps > 0:  # the episode that just ended
+                if self.reason == "reached":
+                    if self._index in missed:
+                        missed.remove(self._index)
+                elif self._index not in missed:
+                    missed.append(self._index)
+            if missed and rng.random() < self._retry_share:
+                self.retried += 1
+                return int(missed[int(rng.integers(len(missed)))])
+        if self._near is None:
+            return int(rng.integers(len(self.workspace)))
+        return int(self._near[int(rng.integers(len(self._near)))])
+
+    def set_target_retry(self, share: float, memory: int) -> None:
+        """From the next reset on, remember the last ``memory`` training targets whose episode
+        ended without reaching them, forget one once reached, and draw the next target among them
+        at the share ``share`` of resets (`armexp.agents.curriculum.MissedTargets`): a curriculum
+        over the policy's own outcomes, no obstacle knowledge. ``share`` 0 turns it off."""
+        self._retry_share = float(share)
+        self._missed = collections.deque(maxlen=int(memory)) if share > 0 else None
 
     def start_distances(self) -> np.ndarray:
         """Each workspace target's distance from the tip at the starting configuration (m)."""
