@@ -205,7 +205,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._near: np.ndarray | None = None
         #: Recently missed training targets, re-drawn at the share `_retry_share` of resets
         #: (`set_target_retry`; None: off). `_index`: the workspace point of this episode's
-        #: target (None when a task or an explicit target set it).
+        #: target (None when a task or an explicit target set it). `retried`: the episodes whose
+        #: target was such a re-draw.
         self._missed: collections.deque[int] | None = None
         self._retry_share = 0.0
         self._index: int | None = None
