@@ -232,13 +232,13 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
                     f"{sorted(self.settings.tasks) or 'none (tasks.targets is empty)'}."
                 )
             self.target = np.asarray(self.settings.tasks[name], dtype=np.float64)
+            self._index = None
         elif options.get("target") is not None:
             self.target = np.asarray(options["target"], dtype=np.float64).reshape(2)
+            self._index = None
         else:
             self._index = self._draw_index()
             self.target = self.workspace.points[self._index].copy()
-        if "task" in options or options.get("target") is not None:
-            self._index = None
         # The τ_d draws of the episode follow the env's seeded generator.
         q0 = self.settings.q0
         offset = options.get("reference_offset")
@@ -302,7 +302,7 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.retried += 1
                 return int(missed[int(rng.integers(len(missed)))])
         if self._near is None:
-            return int(rng.integers(len(self.workspace)))
+            return self.workspace.sample_index(rng)
         return int(self._near[int(rng.integers(len(self._near)))])
 
     def set_target_retry(self, share: float, memory: int) -> None:

@@ -43,8 +43,12 @@ class Workspace:
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
+    def sample_index(self, rng: np.random.Generator) -> int:
+        """The index of a point drawn uniformly."""
+        return int(rng.integers(len(self)))
+
     def sample(self, rng: np.random.Generator) -> Array:
-        return self.points[int(rng.integers(len(self)))].copy()
+        return self.points[self.sample_index(rng)].copy()
 
     def travel_time(self, point: Array | list[float]) -> float:
         """Least travel time to the workspace point nearest ``point`` (s)."""
