@@ -104,6 +104,13 @@ MISSED_TARGETS = AidDeclaration(
         f"{int(number_arg(a, 'memory'))} the policy missed, per environment"
     ),
 )  # fmt: skip
+RANDOM_STARTS = AidDeclaration(
+    "random_starts", "armexp.agents.curriculum.RandomStarts", False, "random starts",
+    lambda a: (
+        f"{number_arg(a, 'share') * 100:g} % of training episodes started at a workspace "
+        "point's posture drawn uniformly instead of the fixed start"
+    ),
+)  # fmt: skip
 COLOURED_NOISE = AidDeclaration(
     "coloured_noise", "armexp.agents.exploration.ColouredNoise", False,
     "coloured-noise exploration",
@@ -115,8 +122,8 @@ COLOURED_NOISE = AidDeclaration(
 )  # fmt: skip
 
 #: Every aid, in the order the presets list them.
-AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS, HER,
-        COLOURED_NOISE)  # fmt: skip
+AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS, RANDOM_STARTS,
+        HER, COLOURED_NOISE)  # fmt: skip
 
 
 def declared(target: str) -> AidDeclaration | None:

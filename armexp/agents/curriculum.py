@@ -9,7 +9,8 @@ share ``full_at`` of the budget, then the whole workspace for the rest. It uses 
 distance only, no planner and no obstacle knowledge (not privileged), and changes nothing but
 which training targets are drawn: the held-out checks and `armexp eval` draw from the whole
 workspace. The ``missed_targets`` aid (`MissedTargets`) draws again the targets the policy has
-missed, while it still misses them.
+missed, while it still misses them; the ``random_starts`` aid (`RandomStarts`) starts some
+training episodes away from the fixed starting posture.
 """
 
 from __future__ import annotations
@@ -130,3 +131,50 @@ class MissedTargets(TrainingAddOn):
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         assert self.callback is not None
         return {"final/retried_episodes": float(self.callback.retried())}
+
+
+class MoveStarts(BaseCallback):
+    """Turns on the training environments' drawn starting postures (`ReachEnv.set_start_share`)
+    when training starts."""
+
+    def __init__(self, share: float) -> None:
+        super().__init__()
+        self.share = share
+
+    def _on_training_start(self) -> None:
+        self.training_env.env_method("set_start_share", self.share)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def moved(self) -> int:
+        """Training episodes that started at a drawn posture, over every environment."""
+        return int(sum(self.training_env.get_attr("moved_starts")))
+
+
+class RandomStarts(TrainingAddOn):
+    """Exploring starts: the share ``share`` of training episodes starts at rest at the posture of
+    a workspace point drawn uniformly (`armexp.envs.workspace.Workspace.configs`, the postures the
+    targets are drawn from) instead of the paper's fixed starting posture; the target is drawn as
+    always. The values of postures the fixed start reaches only after a long detour (the forearm
+    swung below the base, docs/plain_agent.md) are then learned from episodes that start there,
+    and bootstrapping carries them back along the detour. The agent is given nothing beyond its
+    observation and reward, and the environment's reset alone changes (not privileged); the
+    held-out checks and `armexp eval` start at the fixed posture as always.
+    ``final/moved_starts`` counts the episodes started elsewhere."""
+
+    declaration = aids.RANDOM_STARTS
+
+    def __init__(self, share: float) -> None:
+        if not 0.0 < float(share) < 1.0:
+            raise ValueError(f"share={share} must be in (0, 1)")
+        self.share = float(share)
+        self.callback: MoveStarts | None = None
+
+    def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
+        self.callback = MoveStarts(self.share)
+        return [self.callback]
+
+    def finish(self, ctx: TrainingContext) -> dict[str, float]:
+        assert self.callback is not None
+        return {"final/moved_starts": float(self.callback.moved())}

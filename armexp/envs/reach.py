@@ -149,7 +149,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     The same every episode: the arm at rest at ``q0`` (upper arm horizontal, forearm up). The
     target is drawn uniformly from the precomputed collision-free reachable workspace
     (`armexp.envs.workspace`), or fixed with ``reset(options={"target": (x, y)})`` or
-    ``reset(options={"task": "a"})`` for the tasks of ``tasks=paper_four``.
+    ``reset(options={"task": "a"})`` for the tasks of ``tasks=paper_four``. Training may start
+    a share of the drawn-target episodes at another workspace configuration (`set_start_share`).
     ``reset(options={"reference_offset": [δ1, …, δn]})`` starts the reference at q_d(0) = q0 + δ
     instead of q0 (a defined perturbation for measuring convergence, docs/design.md §8).
 
@@ -211,6 +212,10 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._retry_share = 0.0
         self._index: int | None = None
         self.retried = 0
+        #: Training episodes start at a drawn workspace configuration at this share of the resets
+        #: that draw their target (`set_start_share`); `moved_starts` counts them.
+        self._start_share = 0.0
+        self.moved_starts = 0
         self.tip = np.zeros(2)
         self.error = 0.0
         self.steps = 0
@@ -241,6 +246,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             self.target = self.workspace.points[self._index].copy()
         # The τ_d draws of the episode follow the env's seeded generator.
         q0 = self.settings.q0
+        if self._index is not None and self._start_share > 0.0:
+            q0 = self._draw_start(q0)
         offset = options.get("reference_offset")
         qd0 = None if offset is None else q0 + np.broadcast_to(np.asarray(offset, float), q0.shape)
         self.sim.reset(q0, seed=int(self.np_random.integers(2**31)), qd0=qd0)
@@ -312,6 +319,26 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         over the policy's own outcomes, no obstacle knowledge. ``share`` 0 turns it off."""
         self._retry_share = float(share)
         self._missed = collections.deque(maxlen=int(memory)) if share > 0 else None
+
+    def set_start_share(self, share: float) -> None:
+        """From the next reset on, start the share ``share`` of the episodes whose target is drawn
+        at rest at the configuration of another workspace point, drawn uniformly
+        (`armexp.agents.curriculum.RandomStarts`); the others, and every episode given a task
+        or a target, start at ``q0``. ``share`` 0 turns it off."""
+        self._start_share = float(share)
+
+    def _draw_start(self, q0: Array) -> Array:
+        """A drawn workspace configuration at the share asked, else ``q0``; a draw whose tip
+        lies within the target's reach threshold is drawn again (``q0`` after ten)."""
+        rng, ws = self.np_random, self.workspace
+        if rng.random() >= self._start_share:
+            return q0
+        for _ in range(10):
+            i = ws.sample_index(rng)
+            if np.hypot(*(ws.points[i] - self.target)) > 2 * self.settings.reach_threshold:
+                self.moved_starts += 1
+                return np.asarray(ws.configs[i], dtype=np.float64)
+        return q0
 
     def start_distances(self) -> np.ndarray:
         """Each workspace target's distance from the tip at the starting configuration (m)."""
