@@ -505,7 +505,14 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
         assert {name: spec._target_ for name, spec in specs.items()} == {
             a.name: a.target
             for a in aids.AIDS
-            if a not in (aids.CURRICULUM, aids.MISSED_TARGETS, aids.HER, aids.COLOURED_NOISE)
+            if a
+            not in (
+                aids.CURRICULUM,
+                aids.MISSED_TARGETS,
+                aids.RANDOM_STARTS,
+                aids.HER,
+                aids.COLOURED_NOISE,
+            )
         }, preset
     for declaration in aids.AIDS:
         module, _, name = declaration.target.rpartition(".")
@@ -514,7 +521,8 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
         assert aids.declared(declaration.name) is aids.declared(declaration.target) is declaration
     assert {a.name: a.privileged for a in aids.AIDS} == {
         "demonstrations": True, "cloning": True, "expert": True, "averaging": False,
-        "curriculum": False, "missed_targets": False, "her": False, "coloured_noise": False,
+        "curriculum": False, "missed_targets": False, "random_starts": False, "her": False,
+        "coloured_noise": False,
     }  # fmt: skip
     assert aids.declared("armexp.agents.expert.ExpertLabels") is None
     assert aids.privileged_modules() == (
