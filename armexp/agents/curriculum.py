@@ -156,12 +156,13 @@ class RandomStarts(TrainingAddOn):
     """Exploring starts: the share ``share`` of training episodes starts at rest at the posture of
     a workspace point drawn uniformly (`armexp.envs.workspace.Workspace.configs`, the postures the
     targets are drawn from) instead of the paper's fixed starting posture; the target is drawn as
-    always. The values of postures the fixed start reaches only after a long detour (the forearm
-    swung below the base, docs/plain_agent.md) are then learned from episodes that start there,
-    and bootstrapping carries them back along the detour. The agent is given nothing beyond its
-    observation and reward, and the environment's reset alone changes (not privileged); the
-    held-out checks and `armexp eval` start at the fixed posture as always.
-    ``final/moved_starts`` counts the episodes started elsewhere."""
+    always. Postures the fixed start reaches only after a long detour (the forearm swung below
+    the base) are then visited from their first step, so their values are learned from episodes
+    that start there (docs/plain_agent.md has what it measured). The agent is given nothing
+    beyond its observation and reward, and the environment's reset alone changes (not
+    privileged); the held-out checks and `armexp eval` start at the fixed posture as always.
+    ``final/moved_starts`` counts the episodes started elsewhere; a resumed run counts from its
+    resumption."""
 
     declaration = aids.RANDOM_STARTS
 

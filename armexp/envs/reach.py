@@ -329,7 +329,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _draw_start(self, q0: Array) -> Array:
         """A drawn workspace configuration at the share asked, else ``q0``; a draw whose tip
-        lies within the target's reach threshold is drawn again (``q0`` after ten)."""
+        lies within twice the reach threshold of the target is drawn again (``q0`` after ten),
+        so that no episode starts reached."""
         rng, ws = self.np_random, self.workspace
         if rng.random() >= self._start_share:
             return q0
