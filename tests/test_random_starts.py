@@ -4,6 +4,7 @@ non-privileged preset takes the aid that turns it on."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -66,8 +67,6 @@ def test_moved_starts_are_workspace_postures_at_rest_away_from_the_target(
 def test_a_moved_start_steps_like_the_arm_there(settings: ReachSettings) -> None:
     """The episode from a moved start is the simulation from that posture: the same steps as an
     environment whose fixed posture is that one."""
-    import dataclasses
-
     env = ReachEnv(settings)
     env.set_start_share(0.99)
     env.reset(seed=8)

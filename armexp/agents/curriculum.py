@@ -84,23 +84,24 @@ class TargetCurriculum(TrainingAddOn):
         return {"final/curriculum_reach": float(self.callback.reach or 0.0)}
 
 
-class RetryMissed(BaseCallback):
-    """Turns on the training environments' re-draws of missed targets
-    (`ReachEnv.set_target_retry`) when training starts."""
+class SwitchOnAtStart(BaseCallback):
+    """Calls ``method(*args)`` on every training environment when training starts (the
+    environment's own switch for an aid, `ReachEnv.set_target_retry` or `ReachEnv.set_start_share`),
+    and sums the environments' ``counter`` attribute for the run's final metric."""
 
-    def __init__(self, share: float, memory: int) -> None:
+    def __init__(self, method: str, args: tuple[float, ...], counter: str) -> None:
         super().__init__()
-        self.share, self.memory = share, memory
+        self.method, self.args, self.counter = method, args, counter
 
     def _on_training_start(self) -> None:
-        self.training_env.env_method("set_target_retry", self.share, self.memory)
+        self.training_env.env_method(self.method, *self.args)
 
     def _on_step(self) -> bool:
         return True
 
-    def retried(self) -> int:
-        """Training episodes whose target was a re-drawn miss, over every environment."""
-        return int(sum(self.training_env.get_attr("retried")))
+    def total(self) -> int:
+        """The environments' ``counter``, summed over every environment."""
+        return int(sum(self.training_env.get_attr(self.counter)))
 
 
 class MissedTargets(TrainingAddOn):
@@ -122,34 +123,18 @@ class MissedTargets(TrainingAddOn):
         if not int(memory) >= 1 or int(memory) != memory:
             raise ValueError(f"memory={memory} must be a whole number of targets >= 1")
         self.share, self.memory = float(share), int(memory)
-        self.callback: RetryMissed | None = None
+        self.callback: SwitchOnAtStart | None = None
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        self.callback = RetryMissed(self.share, self.memory)
+        # `retried`: training episodes whose target was a re-drawn miss.
+        self.callback = SwitchOnAtStart(
+            "set_target_retry", (self.share, self.memory), counter="retried"
+        )
         return [self.callback]
 
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         assert self.callback is not None
-        return {"final/retried_episodes": float(self.callback.retried())}
-
-
-class MoveStarts(BaseCallback):
-    """Turns on the training environments' drawn starting postures (`ReachEnv.set_start_share`)
-    when training starts."""
-
-    def __init__(self, share: float) -> None:
-        super().__init__()
-        self.share = share
-
-    def _on_training_start(self) -> None:
-        self.training_env.env_method("set_start_share", self.share)
-
-    def _on_step(self) -> bool:
-        return True
-
-    def moved(self) -> int:
-        """Training episodes that started at a drawn posture, over every environment."""
-        return int(sum(self.training_env.get_attr("moved_starts")))
+        return {"final/retried_episodes": float(self.callback.total())}
 
 
 class RandomStarts(TrainingAddOn):
@@ -170,12 +155,13 @@ class RandomStarts(TrainingAddOn):
         if not 0.0 < float(share) < 1.0:
             raise ValueError(f"share={share} must be in (0, 1)")
         self.share = float(share)
-        self.callback: MoveStarts | None = None
+        self.callback: SwitchOnAtStart | None = None
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        self.callback = MoveStarts(self.share)
+        # `moved_starts`: training episodes that started at a drawn posture.
+        self.callback = SwitchOnAtStart("set_start_share", (self.share,), counter="moved_starts")
         return [self.callback]
 
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         assert self.callback is not None
-        return {"final/moved_starts": float(self.callback.moved())}
+        return {"final/moved_starts": float(self.callback.total())}
