@@ -10,7 +10,7 @@ INSTALL = ("-c", "constraints.txt", "-e", ".[dev]")
 
 @nox.session
 def tests(session: nox.Session) -> None:
-    """The default (fast) test suite; pass ``-- -m slow`` for the long tests."""
+    """The default (quick) test suite; pass ``-- -m long`` or ``-- -m slow`` for the longer ones."""
     session.install(*INSTALL)
     session.run("pytest", *session.posargs)
 

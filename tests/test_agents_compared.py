@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
@@ -25,6 +26,7 @@ def _report(runs: Path, evals: list[str], name: str) -> Path:
     return folder / "tables"
 
 
+@pytest.mark.long
 def test_two_agents_are_compared_on_steps_to_90_percent_success_and_tasks(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     aided_train, aided_eval = _hand_store(runs, "sac_quick")
@@ -51,6 +53,7 @@ def test_two_agents_are_compared_on_steps_to_90_percent_success_and_tasks(tmp_pa
     assert not (_report(runs, [aided_eval], "one") / "agents.md").exists()
 
 
+@pytest.mark.long
 def test_an_agent_the_command_names_is_an_agent_of_its_own(runs_dir: Path) -> None:
     """agent.name=… on a preset's changed values: the train run, its name and the report call it
     so (a study comparing it with the preset it came from keeps them apart)."""

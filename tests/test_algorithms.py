@@ -53,6 +53,7 @@ def test_every_agent_preset_composes_and_names_an_algorithm(preset: str) -> None
     assert agent.max_env_steps is not None  # budgets are in environment steps
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("preset", PRESETS)
 def test_a_preset_without_sac_only_options_composes_with_every_algorithm(preset: str) -> None:
     agent = compose_config([f"agent={preset}"]).agent
@@ -62,12 +63,14 @@ def test_a_preset_without_sac_only_options_composes_with_every_algorithm(preset:
         assert compose_config([f"agent={preset}", f"agent.algo={algo}"]).agent.algo == algo
 
 
+@pytest.mark.long
 def test_each_quick_preset_is_its_algorithm() -> None:
     for algo in ALGORITHMS:
         assert compose_config([f"agent={algo}_quick"]).agent.algo == algo
 
 
 # --------------------------------------------------------------------------------- factory
+@pytest.mark.long
 def test_the_factory_builds_each_algorithm_with_its_hyperparameters() -> None:
     classes = {"sac": SAC, "td3": TD3, "tqc": TQC, "crossq": CrossQ, "ppo": PPO}
     for algo, cls in classes.items():
@@ -102,6 +105,7 @@ def test_the_factory_builds_each_algorithm_with_its_hyperparameters() -> None:
     assert value == [16]
 
 
+@pytest.mark.long
 def test_what_each_algorithm_maps_or_leaves_out_is_said_in_one_line() -> None:
     lines = {a: usage(compose_config([*SMALL, f"agent.algo={a}"]).agent).line("sac_smoke")
              for a in ALGORITHMS}  # fmt: skip
@@ -121,6 +125,7 @@ def test_what_each_algorithm_maps_or_leaves_out_is_said_in_one_line() -> None:
     assert {a.name for a in ALGORITHM.values() if a.off_policy} == OFF_POLICY
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("algo", ALGORITHMS)
 def test_each_algorithm_trains_saves_and_loads(algo: str, tmp_path: Path) -> None:
     model, agent = _agent(algo)
@@ -135,6 +140,7 @@ def test_each_algorithm_trains_saves_and_loads(algo: str, tmp_path: Path) -> Non
     assert np.allclose(ours, theirs)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("algo", ["td3", "tqc", "crossq"])
 def test_a_resumed_off_policy_model_refills_its_buffer_with_its_policy(
     algo: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -258,6 +264,7 @@ def test_table_ii_names_the_algorithm_and_its_own_values() -> None:
     assert ppo["PPO: n_steps"] == "256"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("algo", ["td3", "ppo"])
 def test_a_train_run_tags_its_algorithm_and_is_named_after_it(
     algo: str, runs_dir: Path, capsys: pytest.CaptureFixture[str]
@@ -289,6 +296,7 @@ def test_ppo_is_sized_by_its_rollout_not_by_a_replay_buffer() -> None:
     assert ppo.bytes == sac.bytes // 1_000_000 * 2048
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("algo", ["td3", "ppo"])
 def test_an_interrupted_run_of_another_algorithm_resumes_to_its_budget(
     algo: str, runs_dir: Path, monkeypatch: pytest.MonkeyPatch

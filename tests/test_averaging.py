@@ -53,6 +53,7 @@ def test_without_a_weight_set_in_the_tail_the_actor_is_left_as_trained() -> None
 AVERAGE_HALF = "+agent.aids.averaging={_target_:armexp.agents.averaging.WeightAveraging,tail:0.5}"
 
 
+@pytest.mark.long
 def test_a_train_run_saves_the_averaged_actor_and_checkpoints_the_last_one(
     runs_dir: Path, tmp_path: Path
 ) -> None:

@@ -38,6 +38,7 @@ def stub_stage(monkeypatch: pytest.MonkeyPatch, module: str) -> list[Any]:
 
 
 # ------------------------------------------------------------------------------- launchers
+@pytest.mark.long
 @pytest.mark.parametrize(
     ("launcher", "said"),
     [
@@ -69,6 +70,7 @@ def test_launcher_options_are_listed(runs_dir: Path, capsys: pytest.CaptureFixtu
 
 
 # ------------------------------------------------------------------------- tasks.targets
+@pytest.mark.long
 def test_eval_without_task_targets_is_answered_about_tasks_targets(
     runs_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -83,6 +85,7 @@ def test_eval_without_task_targets_is_answered_about_tasks_targets(
     assert len(calls) == 1
 
 
+@pytest.mark.long
 def test_play_without_task_targets_is_answered_about_tasks_targets(
     runs_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -161,6 +164,7 @@ def test_a_report_filter_that_is_not_mlflows_syntax_is_one_sentence(
     assert client.search_runs([exp.experiment_id]) == []
 
 
+@pytest.mark.long
 def test_a_sweep_that_stops_before_any_job_leaves_no_sweep_run(
     runs_dir: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -182,6 +186,7 @@ def test_a_sweep_that_stops_before_any_job_leaves_no_sweep_run(
 
 
 # ----------------------------------------------------------------------------- store address
+@pytest.mark.long
 @pytest.mark.parametrize("uri", ["file:./mlruns", "foo://bar", "./some/folder"])
 def test_a_tracking_uri_no_store_behind_is_one_sentence(
     uri: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
@@ -194,6 +199,7 @@ def test_a_tracking_uri_no_store_behind_is_one_sentence(
     assert not (tmp_path / "mlruns").exists()
 
 
+@pytest.mark.long
 def test_a_device_this_machine_lacks_is_one_sentence_before_any_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -122,6 +122,7 @@ def test_one_row_per_claim_and_baseline_each_against_its_own_proposed_side() -> 
     assert "confirmed" not in table.markdown() and "direction only" not in table.markdown()
 
 
+@pytest.mark.long
 def test_the_ci_says_whether_it_includes_the_tuning() -> None:
     values = {"adaptive": (0.15, 0.08), "pid_itae": (0.8, 1.0)}
     varied = _numbers(_episodes(5, values)).ci_covers.iloc[0]

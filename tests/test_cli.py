@@ -39,6 +39,7 @@ def test_sweeps_expand_like_hydras_basic_sweeper() -> None:
     assert sweep_combinations(["x=interval(0,1)", "y=1"]) == [["y=1"]]
 
 
+@pytest.mark.long
 def test_a_bad_value_at_sweep_combination_67_stops_the_sweep_before_any_job(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -67,6 +68,7 @@ def test_cfg_job_with_flags_between_overrides(capsys: pytest.CaptureFixture[str]
     assert cfg["robot"]["name"] == "three_link" and cfg["seed"] == 3
 
 
+@pytest.mark.long
 def test_a_stages_help_is_hydras_and_checks_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -78,6 +80,7 @@ def test_a_stages_help_is_hydras_and_checks_nothing(
     assert list(tmp_path.iterdir()) == []  # no runs folder made
 
 
+@pytest.mark.long
 def test_a_config_dir_is_seen_by_the_check_of_every_sweep_job(
     runs_dir: Path, tmp_path: Path
 ) -> None:
@@ -91,6 +94,7 @@ def test_a_config_dir_is_seen_by_the_check_of_every_sweep_job(
     assert {r.data.params["robot.name"] for r in runs} == {"my_arm"}
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     ("where", "said"),
     [("setup", "no run was started."), ("build_plant", "the MLflow run is marked KILLED.")],

@@ -55,6 +55,7 @@ def _term_loss(model: ResumableSAC, term: DemonstrationCloning) -> torch.Tensor:
     return term.loss(model.actor(obs, deterministic=True), actions, q)
 
 
+@pytest.mark.long
 def test_an_update_with_the_cloning_term_is_sacs_update_plus_the_cloning_gradient(
     env: ReachEnv, demos: list[Demonstration]
 ) -> None:

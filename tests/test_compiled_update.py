@@ -117,6 +117,7 @@ def runs(demos: list[Demonstration]) -> Runs:
 
 
 # A compiled case compiles for about a minute on a cold cache: those run with the slow set.
+@pytest.mark.long
 @pytest.mark.parametrize(
     "case",
     [
@@ -193,6 +194,7 @@ def test_a_compiled_model_saved_loaded_and_continued_is_the_model_continued_in_p
             assert all(torch.equal(got_state[index][k], want[k]) for k in want)
 
 
+@pytest.mark.long
 def test_one_process_compiles_the_update_of_model_after_model_without_a_recompile_limit() -> None:
     """An HPO trains trial after trial in one process: each model's update compiles against a
     limit of its own (one here), not against a count shared by every model the process made."""

@@ -28,6 +28,7 @@ def test_every_group_of_the_design_exists_with_options() -> None:
         assert group_options(group), group
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("group", GROUPS)
 def test_every_option_composes_and_validates(
     group: str, compose: Callable[..., DictConfig]
@@ -69,6 +70,7 @@ def test_default_config_values_match_the_paper(compose: Callable[..., DictConfig
     assert cfg.env.reach_threshold == 0.04 and cfg.env.max_steps == 1000
 
 
+@pytest.mark.long
 def test_gains_preset_override_and_experiment_preset(compose: Callable[..., DictConfig]) -> None:
     assert compose("controller.gains=paper").controller.gains.a0 == 668.0
     smoke = compose("experiment=smoke")

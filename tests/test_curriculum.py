@@ -74,6 +74,7 @@ def test_the_reach_widens_with_the_budget_to_the_whole_workspace(settings: Reach
     assert venv.get_attr("_near") == [None, None]
 
 
+@pytest.mark.long
 def test_a_non_privileged_preset_trains_with_the_curriculum(runs_dir: Path) -> None:
     assert aids.CURRICULUM.privileged is False
     assert main(plain_train(runs_dir, CURRICULUM)) == 0

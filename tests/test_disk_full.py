@@ -118,6 +118,7 @@ def test_a_full_disk_cuts_no_model_short(tmp_path: Path) -> None:
     assert not (artifacts / "model").exists() or not any((artifacts / "model").iterdir())
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("stage", [pytest.param("train", marks=pytest.mark.slow), "tune"])
 def test_a_store_whose_disk_fills_still_marks_the_run_failed(tmp_path: Path, stage: str) -> None:
     """So little room that the store's own writes (metrics) fail during the run: the room kept

@@ -32,6 +32,7 @@ def _with(settings: ReachSettings, **changes: Any) -> ReachEnv:
 
 
 # ------------------------------------------------------------------------------ gym contract
+@pytest.mark.long
 @pytest.mark.parametrize("robot", ["two_link_paper", "three_link"])
 @pytest.mark.parametrize("obstacles", ["paper_five", "none"])
 def test_check_env_passes(robot: str, obstacles: str) -> None:

@@ -56,6 +56,7 @@ def _cfg(compose: Callable[..., DictConfig], criterion: str, *overrides: str) ->
     return with_criterion(compose(*overrides), criterion)
 
 
+@pytest.mark.long
 def test_a_tuned_adaptive_policy_gets_its_ablation_baselines_and_the_references_they_need(
     compose: Callable[..., DictConfig], tuned: dict[str, str]
 ) -> None:
@@ -88,6 +89,7 @@ def test_a_tuned_adaptive_policy_gets_its_ablation_baselines_and_the_references_
                       "compare_with": "adaptive_itae"}  # fmt: skip
 
 
+@pytest.mark.long
 def test_the_comparison_criterion_decides_which_reference_is_needed(
     compose: Callable[..., DictConfig], tuned: dict[str, str]
 ) -> None:
@@ -100,6 +102,7 @@ def test_the_comparison_criterion_decides_which_reference_is_needed(
     assert rows["adaptive_gaing"].gains.tune_run == tuned["subsystem_adaptive_gaing"]
 
 
+@pytest.mark.long
 def test_configured_adaptive_gains_need_a_reference_for_every_tuned_baseline(
     compose: Callable[..., DictConfig], tuned: dict[str, str]
 ) -> None:
@@ -110,6 +113,7 @@ def test_configured_adaptive_gains_need_a_reference_for_every_tuned_baseline(
     assert reference_criteria(["pid_gaing", "pid_itae"], "itae", "itae") == ["gaing"]
 
 
+@pytest.mark.long
 def test_configured_baselines_need_no_tune_run_and_no_reference(
     compose: Callable[..., DictConfig],
 ) -> None:
@@ -123,6 +127,7 @@ def test_configured_baselines_need_no_tune_run_and_no_reference(
         assert entry.compare_with == "adaptive"
 
 
+@pytest.mark.long
 def test_a_pid_trained_policy_has_no_ablation_and_no_reference(
     compose: Callable[..., DictConfig], tuned: dict[str, str]
 ) -> None:
@@ -133,6 +138,7 @@ def test_a_pid_trained_policy_has_no_ablation_and_no_reference(
     ]  # fmt: skip
 
 
+@pytest.mark.long
 def test_tune_runs_given_by_label_are_used_and_checked(
     compose: Callable[..., DictConfig], tuned: dict[str, str]
 ) -> None:
@@ -170,6 +176,7 @@ def test_a_reference_without_a_tune_run_is_one_sentence_naming_its_key(
     )
 
 
+@pytest.mark.long
 def test_play_takes_a_label(compose: Callable[..., DictConfig], tuned: dict[str, str]) -> None:
     cfg = _cfg(compose, "gaing")
     policy = _policy(cfg)
@@ -185,6 +192,7 @@ def test_play_takes_a_label(compose: Callable[..., DictConfig], tuned: dict[str,
     assert set(BASELINES) < set(PLAY_LABELS)
 
 
+@pytest.mark.long
 def test_computed_torque_is_tuned_under_the_comparisons_criterion(
     compose: Callable[..., DictConfig],
 ) -> None:
@@ -218,6 +226,7 @@ def test_an_unknown_baseline_is_one_sentence_naming_the_allowed_ones(
     ]
 
 
+@pytest.mark.long
 def test_a_tune_run_of_another_controller_for_a_baseline_is_one_sentence(
     store: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

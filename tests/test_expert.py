@@ -48,6 +48,7 @@ def demos(env: ReachEnv) -> list[Demonstration]:
     return demonstrations(env, 4, seed=5)
 
 
+@pytest.mark.long
 def test_the_expert_reaches_held_out_targets_and_a_dear_margin_keeps_it_off_the_obstacles(
     env: ReachEnv, expert: TimeToGoExpert
 ) -> None:

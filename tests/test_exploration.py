@@ -77,6 +77,7 @@ def test_the_coloured_distribution_samples_white_noise_for_a_batch_it_was_not_bu
     assert float(a.std(dim=0).min()) > 0.4  # independent draws, not one noise vector repeated
 
 
+@pytest.mark.long
 def test_a_non_privileged_preset_trains_with_coloured_noise_and_others_are_refused(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

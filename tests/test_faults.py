@@ -92,6 +92,7 @@ def _when_simulating(monkeypatch: pytest.MonkeyPatch, then: Callable[[], Any]) -
     monkeypatch.setattr(simulate, "build_plant", build_plant)
 
 
+@pytest.mark.long
 def test_a_server_that_dies_during_a_run_stops_it_within_tracking_timeout_s(
     server: Server, tmp_path: Path, capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
@@ -116,6 +117,7 @@ def test_a_server_that_dies_during_a_run_stops_it_within_tracking_timeout_s(
     assert os.environ.get("MLFLOW_HTTP_REQUEST_MAX_RETRIES") is None  # put back after the command
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "sig",
     [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)],

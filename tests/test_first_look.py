@@ -65,6 +65,7 @@ def test_a_pipeline_fits_on_one_screen_with_one_line_per_stage(tmp_path: Path) -
     assert _names(runs, "report") == ["report"]
 
 
+@pytest.mark.long
 def test_the_experiment_is_marked_classic_ml_and_runs_are_named_by_what_they_are(
     tmp_path: Path,
 ) -> None:
@@ -79,6 +80,7 @@ def test_the_experiment_is_marked_classic_ml_and_runs_are_named_by_what_they_are
     assert experiment is not None and experiment.tags.items() >= KIND_TAGS.items()
 
 
+@pytest.mark.long
 def test_a_sweep_names_its_jobs_by_the_values_it_varies(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     where = f"tracking.runs_dir={runs}"
@@ -94,6 +96,7 @@ def test_a_sweep_names_its_jobs_by_the_values_it_varies(tmp_path: Path) -> None:
     ]
 
 
+@pytest.mark.long
 def test_the_kind_is_added_to_an_older_experiment_and_a_users_kind_stays(
     tmp_path: Path,
 ) -> None:
@@ -117,6 +120,7 @@ mlflow.artifacts.download_artifacts(run_id=sys.argv[2], artifact_path="a.txt", d
 """
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("how", ["without armexp", "armexp", "a process armexp started"])
 def test_artifact_downloads_show_no_progress_bar_once_armexp_is_imported(
     tmp_path: Path, how: str

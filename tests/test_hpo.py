@@ -61,6 +61,7 @@ def _asked(runs: Path, name: str) -> tuple[Any, Any, dict[str, float]]:
     return created, trial, values
 
 
+@pytest.mark.long
 def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_dir: Path) -> None:
     where = f"tracking.runs_dir={runs_dir}"
     assert main(["hpo", "hpo=smoke", *TINY, where]) == 0
@@ -109,6 +110,7 @@ def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_di
     assert "`agent.learning_rate=" in shown and " agent.gamma=" in shown
 
 
+@pytest.mark.long
 def test_two_processes_share_one_study_and_one_hpo_run(runs_dir: Path) -> None:
     """hpo.n_jobs=2 starts a copy of the command as a worker; a worker asks the same study for
     trials and hangs them under the same HPO run, with values of its own."""
@@ -190,6 +192,7 @@ def test_stopping_a_parallel_search_interrupts_every_process_and_the_command_res
     assert sum(t.state.name == "COMPLETE" for t in after.trials) >= 3
 
 
+@pytest.mark.long
 def test_a_trial_left_running_by_a_killed_process_is_failed_and_run_again(runs_dir: Path) -> None:
     """A killed command leaves its trial RUNNING in the study and its HPO run RUNNING in
     MLflow: the same command marks the trial FAIL (interrupted) and runs its values again, in
@@ -215,6 +218,7 @@ def test_a_trial_left_running_by_a_killed_process_is_failed_and_run_again(runs_d
     assert len(_study(runs_dir, "killed").trials) == 2
 
 
+@pytest.mark.long
 def test_a_trial_that_failed_on_its_own_runs_again_only_when_asked(runs_dir: Path) -> None:
     """A failed trial counts as done; ``hpo.retry_failed=true`` queues its values again once
     (a failure since fixed), and the retry then counts in its place."""
@@ -234,6 +238,7 @@ def test_a_trial_that_failed_on_its_own_runs_again_only_when_asked(runs_dir: Pat
     assert len(_study(runs_dir, "broken").trials) == 2
 
 
+@pytest.mark.long
 def test_a_study_another_process_runs_is_refused(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -252,6 +257,7 @@ def test_a_study_another_process_runs_is_refused(
     assert stage_runs(runs_dir, "trial") == []
 
 
+@pytest.mark.long
 def test_the_optuna_sweeper_runs_2_trials_through_the_launcher(runs_dir: Path) -> None:
     where = f"tracking.runs_dir={runs_dir}"
     args = ["train", "-m", "hydra/sweeper=optuna", "hydra.sweeper.n_trials=2",
@@ -278,6 +284,7 @@ SMOKE = ["hpo", "hpo=smoke"]
 SWEEP = ["train", "-m", "hydra/sweeper=optuna", "train.eval_every=100"]
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     ("args", "sentence"),
     [
@@ -400,6 +407,7 @@ def test_the_held_out_checks_prune_a_trial_and_stop_its_training() -> None:
     assert addon.pruned_at == 1200
 
 
+@pytest.mark.long
 def test_the_report_shows_optunas_parameter_importances(tmp_path: Path) -> None:
     from armexp.report import hpo
 

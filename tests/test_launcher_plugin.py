@@ -49,6 +49,7 @@ def _launchers(python: str | Path, cwd: Path) -> tuple[list[str], str]:
     return [rest for tag, rest in lines if tag == "LAUNCHER"], where
 
 
+@pytest.mark.long
 def test_hydra_finds_the_armexp_ray_launcher_in_this_install(tmp_path: Path) -> None:
     """The install the tests run from (the README's: ``pip install -e``)."""
     launchers, _ = _launchers(sys.executable, tmp_path)

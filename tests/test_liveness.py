@@ -16,7 +16,8 @@ from mlflow.tracking import MlflowClient
 
 from armexp.cli import main
 from armexp.tracking import liveness
-from armexp.tracking.tags import PROCESS_TAG
+from armexp.tracking.stage_runs import close_orphans
+from armexp.tracking.tags import HEARTBEAT_TAG, PROCESS_TAG, STAGE_TAG
 from tests.helpers import SMALL_TRAIN
 
 
@@ -39,6 +40,7 @@ def _running_train(runs: Path) -> tuple[subprocess.Popen[str], Any]:
     pytest.fail("the train run did not start within 120 s")
 
 
+@pytest.mark.long
 def test_resuming_a_run_that_is_still_training_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -57,6 +59,7 @@ def test_resuming_a_run_that_is_still_training_is_refused(
     assert client.get_run(run.info.run_id).info.status == "KILLED"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("same_host", [True, False])
 def test_a_run_whose_process_died_is_closed_by_the_next_command(
     tmp_path: Path,
@@ -123,3 +126,37 @@ def test_a_live_sweep_and_its_pipeline_parents_are_not_taken_for_dead(
     assert exp is not None
     statuses = [r.info.status for r in client.search_runs([exp.experiment_id])]
     assert statuses == ["FINISHED"] * 4  # three jobs and the sweep
+
+
+def test_a_stopped_process_on_this_host_keeps_its_run_however_long_it_is_silent(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A process paused with SIGSTOP writes no heartbeat but still runs: on its own host the
+    next command leaves its run alone; only from another host does its silence close the run."""
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        os.kill(sleeper.pid, signal.SIGSTOP)
+        start = Path(f"/proc/{sleeper.pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
+        identity = f"{liveness.socket.gethostname()}:{sleeper.pid}:{start}"
+        runs = tmp_path / "runs"
+        assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
+                     f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
+        client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
+        exp = client.get_experiment_by_name("armexp")
+        assert exp is not None
+        silent = time.time() - 10 * liveness.STALE_S
+        paused = client.create_run(exp.experiment_id, tags={
+            STAGE_TAG: "train", PROCESS_TAG: identity, HEARTBEAT_TAG: f"{silent:.0f}"})  # fmt: skip
+        run_id = paused.info.run_id
+        assert liveness.is_alive(client.get_run(run_id))
+        assert close_orphans(client, exp.experiment_id) == []
+        assert client.get_run(run_id).info.status == "RUNNING"
+        monkeypatch.setattr(liveness.socket, "gethostname", lambda: "another-host")
+        assert close_orphans(client, exp.experiment_id) == [run_id]
+        closed = client.get_run(run_id)
+        assert closed.info.status == "FAILED"
+        assert "no heartbeat for" in closed.data.tags["armexp.error"]
+        capsys.readouterr()
+    finally:
+        os.kill(sleeper.pid, signal.SIGKILL)
+        sleeper.wait(timeout=60)

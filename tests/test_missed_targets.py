@@ -93,6 +93,7 @@ def test_it_remembers_the_last_misses_only_and_never_a_tasks_target(
     assert list(env._missed) == before
 
 
+@pytest.mark.long
 def test_a_non_privileged_preset_trains_with_the_aid_and_bad_values_are_one_sentence(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -25,6 +25,7 @@ def _schema(db: Path) -> tuple[list[tuple[str, str]], list[tuple[str]], list[tup
     return tables, version, experiments
 
 
+@pytest.mark.long
 def test_a_copied_store_is_the_store_mlflow_makes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -45,6 +46,7 @@ def test_a_copied_store_is_the_store_mlflow_makes(
     assert client.get_run(run.info.run_id).data.metrics == {"x": 1.0}
 
 
+@pytest.mark.long
 def test_the_template_is_made_once_and_copied_after(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -56,6 +58,7 @@ def test_the_template_is_made_once_and_copied_after(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "one.db", "two.db"]
 
 
+@pytest.mark.long
 def test_a_cache_that_cannot_be_written_leaves_the_store_to_mlflow(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -50,6 +50,7 @@ def pipeline_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return runs
 
 
+@pytest.mark.long
 def test_pipeline_makes_one_parent_and_a_finished_child_per_stage(pipeline_store: Path) -> None:
     (parent,) = _runs(pipeline_store, "pipeline")
     assert parent.info.status == "FINISHED"
@@ -146,6 +147,7 @@ def test_reuse_runs_a_stage_again_when_a_key_it_reads_changed(pipeline_store: Pa
     assert "armexp.reused.train" in again.data.tags
 
 
+@pytest.mark.long
 def test_failing_stage_fails_the_parent_and_names_itself(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -219,6 +221,7 @@ def _steps(criterion: str, *overrides: str) -> dict[str, tuple[str, str]]:
     return tune_steps(with_criterion(compose_config(list(overrides)), criterion))
 
 
+@pytest.mark.long
 def test_tune_steps_tune_every_baseline_and_the_references_it_needs() -> None:
     both = "eval.baselines=[pid_gaing,pid_itae]"
     assert _steps("gaing", both) == {
@@ -261,6 +264,7 @@ def test_the_paper_gains_row_runs_the_policy_alone_with_configured_gains() -> No
     assert list(cfg.eval.baselines) == ["pid_gaing", "pid_itae", "computed_torque"]
 
 
+@pytest.mark.long
 def test_each_step_gets_a_config_of_its_own_with_its_upstream_run_ids() -> None:
     cfg = with_criterion(compose_config(["eval.baselines=[pid_itae]"]), "itae")
     before = OmegaConf.to_container(cfg)
@@ -291,6 +295,7 @@ def test_computed_torque_is_tuned_under_the_comparisons_criterion() -> None:
 
 
 #: The three-link arm in the default set (the more general case); the others with the slow set.
+@pytest.mark.long
 @pytest.mark.parametrize(
     "robot",
     [

@@ -48,6 +48,7 @@ def _tiny(preset: str) -> list[str]:
 
 
 # ------------------------------------------------------------------------ every preset trains
+@pytest.mark.long
 @pytest.mark.parametrize("preset", PRESETS)
 def test_every_agent_preset_trains_a_few_hundred_steps_through_the_train_stage(
     preset: str, runs_dir: Path
@@ -60,6 +61,7 @@ def test_every_agent_preset_trains_a_few_hundred_steps_through_the_train_stage(
 
 
 # ------------------------------------------------------------------------- the plain preset
+@pytest.mark.long
 def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids() -> None:
     with_aids = set()
     for preset in NON_PRIVILEGED:
@@ -118,6 +120,7 @@ def test_an_aid_without_privileged_knowledge_is_allowed_and_an_aided_preset_unch
     assert len(compose_config(["agent=sac_quick"]).agent.aids) == 4
 
 
+@pytest.mark.long
 def test_training_sac_plain_imports_no_planner_aid_and_reports_it_not_aided(
     runs_dir: Path,
 ) -> None:
@@ -237,6 +240,7 @@ def test_reproduce_runs_the_plain_rows_in_steps_beside_its_aided_agent() -> None
     assert cfg.agent.name == "sac_quick" and cfg.agent.max_env_steps == 400_000
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     ("entry", "message"),
     [

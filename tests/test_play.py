@@ -47,6 +47,7 @@ def test_eval_animates_each_paper_task_for_every_label(store: Path, tmp_path: Pa
         assert _frames(gif) == len(frame_rows(trajectory.t.to_numpy()))
 
 
+@pytest.mark.long
 def test_play_animates_a_task_and_an_extra_target_in_a_play_run(
     store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -81,6 +82,7 @@ def test_play_animates_a_task_and_an_extra_target_in_a_play_run(
     assert _frames(folder / "c.gif") == len(frame_rows(played.t.to_numpy()))
 
 
+@pytest.mark.long
 def test_play_with_a_baseline_writes_only_the_formats_asked_for(store: Path) -> None:
     where = f"tracking.runs_dir={store}"
     pid = pid_baseline()
@@ -94,6 +96,7 @@ def test_play_with_a_baseline_writes_only_the_formats_asked_for(store: Path) -> 
     assert run.data.tags[f"armexp.tune_run.{pid}"] == pid_tune.info.run_id
 
 
+@pytest.mark.long
 def test_play_with_the_ablation_plays_the_episode_eval_measured(
     store: Path, tmp_path: Path
 ) -> None:
@@ -109,6 +112,7 @@ def test_play_with_the_ablation_plays_the_episode_eval_measured(
     assert (played.rho_hat == 0).all()
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     ("override", "says"),
     [

@@ -19,6 +19,7 @@ QUICK_EVAL = ["eval", "tasks.n_random=0", "eval.baselines=[]", "eval.ablation=fa
 QUICK_PLAY = ["play", "play.tasks=[d]", "play.formats=[gif]"]
 
 
+@pytest.mark.long
 def test_eval_of_an_8_character_id_records_the_full_id_and_the_policys_robot(
     three_link_train: tuple[Path, str], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -37,6 +38,7 @@ def test_eval_of_an_8_character_id_records_the_full_id_and_the_policys_robot(
     assert "robot=three_link" in capsys.readouterr().out
 
 
+@pytest.mark.long
 def test_play_records_the_policys_robot(three_link_train: tuple[Path, str]) -> None:
     runs, train_id = three_link_train
     fresh()
@@ -47,6 +49,7 @@ def test_play_records_the_policys_robot(three_link_train: tuple[Path, str]) -> N
     assert play.data.params["robot.lengths"] == "[0.8, 0.6, 0.4]"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("stage", ["eval", "play"])
 def test_a_train_run_without_its_model_is_one_sentence_and_no_run(
     stage: str,

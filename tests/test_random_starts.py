@@ -86,6 +86,7 @@ def test_a_moved_start_steps_like_the_arm_there(settings: ReachSettings) -> None
             break
 
 
+@pytest.mark.long
 def test_a_non_privileged_preset_trains_with_the_aid_and_bad_values_are_one_sentence(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

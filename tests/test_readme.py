@@ -118,6 +118,7 @@ def _ui_block() -> list[str]:
     return commands(after="## Looking at runs")
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "which",
     # The plain MLflow line serves the same store as `armexp ui`; it is slow (about 25 s).

@@ -166,6 +166,7 @@ def chain(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return runs
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "overrides",
     [["train.gains=config", "controller.gains=paper"], ["agent.n_envs=2", "train.eval_every=300",
@@ -179,6 +180,7 @@ def test_train_reads_only_what_it_declares(overrides: list[str], chain: Path) ->
     assert run.data.tags[INPUTS_TAG] == train.READS.digest(cfg)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "overrides",
     [["eval.baselines=[pid_itae]"],
@@ -218,6 +220,7 @@ def test_the_digest_is_made_as_before_so_earlier_runs_keep_matching(
         assert Reads(stage, keys).digest(cfg) == _hash_as_armexp_always_did(cfg, keys)
 
 
+@pytest.mark.long
 def test_the_digest_follows_the_inputs_and_nothing_else(
     compose: Callable[..., DictConfig],
 ) -> None:
@@ -244,6 +247,7 @@ def test_the_digest_follows_the_inputs_and_nothing_else(
 
 
 # ------------------------------------------------------------------------------------- reuse
+@pytest.mark.long
 def test_reuse_takes_a_run_with_the_same_inputs_only(
     compose: Callable[..., DictConfig], runs_dir: Path
 ) -> None:

@@ -124,6 +124,7 @@ def test_the_buffer_relabels_toward_tips_reached_later_in_the_same_episode(
     assert 0.45 < relabelled < 0.55
 
 
+@pytest.mark.long
 def test_her_trains_a_non_privileged_preset_and_is_refused_where_it_cannot_work(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -53,6 +53,7 @@ def test_one_frame_per_action_period_capped_with_the_last_state_kept() -> None:
     assert set(np.diff(thinned[:-1])) == {90}  # every third period: 3x speed
 
 
+@pytest.mark.long
 def test_gif_and_mp4_show_the_arm_moving_at_33_fps(tmp_path: Path) -> None:
     trajectory = _swing(3.0)
     paths = write(trajectory, SCENE, tmp_path / "swing")

@@ -44,6 +44,7 @@ def _report(store: Path, out: Path) -> int:
     return main(["report", f"tracking.runs_dir={store}", f"report.out_dir={out}"])
 
 
+@pytest.mark.long
 def test_report_has_every_table_and_figure(store: Path, tmp_path: Path) -> None:
     out = tmp_path / "report"
     assert _report(store, out) == 0
@@ -95,6 +96,7 @@ def test_report_has_every_table_and_figure(store: Path, tmp_path: Path) -> None:
     assert "report/tables/table3_performance.md" in names
 
 
+@pytest.mark.long
 def test_report_shows_the_eval_runs_animations(store: Path, tmp_path: Path) -> None:
     out = tmp_path / "report"
     assert _report(store, out) == 0
@@ -145,12 +147,14 @@ def test_report_runs_without_simulation_environment_or_agent_code(
     assert (tmp_path / "r" / "tables" / "table3_performance.md").exists()
 
 
+@pytest.mark.long
 def test_empty_store_is_one_sentence(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["report", f"tracking.runs_dir={tmp_path / 'runs'}"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "armexp eval" in err
 
 
+@pytest.mark.long
 def test_selection_without_eval_runs_is_one_sentence(
     store: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -530,6 +534,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
     )  # fmt: skip
 
 
+@pytest.mark.long
 def test_out_dir_that_is_not_a_report_is_refused_and_left_as_it_was(
     store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -43,6 +43,7 @@ def test_a_users_files_in_the_default_report_folder_are_kept_and_named(
     assert _report(store) == 0  # the report's own files alone: replaced as before
 
 
+@pytest.mark.long
 def test_a_report_older_than_its_file_list_keeps_a_users_file(
     store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -48,6 +48,7 @@ KEYS = [
 ]
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(("stage", "key"), KEYS)
 def test_an_ambiguous_prefix_names_its_candidates(
     stage: str, key: str, three_runs: MlflowClient, runs_dir: Path,
@@ -62,6 +63,7 @@ def test_an_ambiguous_prefix_names_its_candidates(
     assert _runs(three_runs) == 3
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(("stage", "key"), KEYS)
 def test_an_unknown_prefix_is_one_sentence(
     stage: str, key: str, three_runs: MlflowClient, runs_dir: Path,
@@ -76,6 +78,7 @@ def test_an_unknown_prefix_is_one_sentence(
     assert _runs(three_runs) == 3
 
 
+@pytest.mark.long
 def test_a_list_of_eval_runs_takes_prefixes(
     three_runs: MlflowClient, runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -106,6 +109,7 @@ def test_a_prefix_too_short_or_not_hex_is_one_sentence(
         ]
 
 
+@pytest.mark.long
 def test_diff_takes_prefixes(
     three_runs: MlflowClient, runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 import torch
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3 import SAC
@@ -52,6 +53,7 @@ def test_table_ii_names_the_critics_hidden_layers_where_they_differ() -> None:
     assert _table_two("Hidden layers", "experiment=quick") == "128×128"
 
 
+@pytest.mark.long
 def test_table_ii_says_how_the_gradients_were_computed() -> None:
     assert _table_two("Gradients", "experiment=demo") == "compiled"
     assert _table_two("Gradients", "experiment=quick") == "compiled"
@@ -59,6 +61,7 @@ def test_table_ii_says_how_the_gradients_were_computed() -> None:
     assert _table_two("Gradients", "experiment=quick", "agent.gradients=autograd") == "autograd"
 
 
+@pytest.mark.long
 def test_the_lean_update_gives_the_parameters_of_sb3s_update() -> None:
     class Reference(ResumableSAC):
         train = SAC.train  # SB3's own update

@@ -29,6 +29,7 @@ def _search(uri: str, stage: str) -> list[Any]:
     return stage_runs(uri, stage)
 
 
+@pytest.mark.long
 def test_joblib_sweep_of_4_jobs_on_2_workers_loses_nothing(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     rc = main(
@@ -336,6 +337,7 @@ def test_an_unreachable_tracking_server_is_one_sentence(
     assert f"tracking.uri={url} is not allowed: no MLflow server answers there" in err[0]
 
 
+@pytest.mark.long
 def test_the_ray_launcher_without_its_plugin_is_one_sentence(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
@@ -371,6 +373,7 @@ def test_an_unreachable_ray_cluster_is_one_sentence_within_seconds(
     assert "no Ray cluster is running on this machine and RAY_ADDRESS is not set" in line
 
 
+@pytest.mark.long
 def test_an_inherited_mlflow_run_id_does_not_capture_a_stage_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from armexp.sim import reference as ref
 from armexp.sim.controllers import ADAPTIVE, PAPER_GAINS, PID, gain_vector
@@ -63,6 +64,7 @@ def _commands(rng: np.random.Generator, bound: np.ndarray, steps: int) -> np.nda
     return np.repeat(rng.uniform(-1, 1, (steps // 30 + 1, bound.size)) * bound, 30, axis=0)[:steps]
 
 
+@pytest.mark.long
 def test_compiled_core_equals_numpy_reference() -> None:
     rng = np.random.default_rng(1)
     cases = [

@@ -151,6 +151,7 @@ def test_gain_margin_and_integrators_without_gain() -> None:
     assert stability.spectral_radius(PID, with_i, lin).max() < 1.0
 
 
+@pytest.mark.long
 def test_objective_rejects_gains_the_scenarios_alone_accept(
     compose: Callable[..., DictConfig],
 ) -> None:
@@ -163,6 +164,7 @@ def test_objective_rejects_gains_the_scenarios_alone_accept(
     assert constrained(OLD_PID[None])[0] == np.inf
 
 
+@pytest.mark.long
 def test_tuned_pid_holds_every_grid_pose_and_the_near_straight_arm(
     runs_dir: Path, compose: Callable[..., DictConfig]
 ) -> None:

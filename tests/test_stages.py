@@ -49,6 +49,7 @@ def test_unknown_stage_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert "stage=fly is not a known stage" in capsys.readouterr().err
 
 
+@pytest.mark.long
 def test_bad_value_exits_2_with_one_line_and_no_traceback(tmp_path: Path) -> None:
     res = subprocess.run(
         [
@@ -125,6 +126,7 @@ def test_simulate_logs_a_finished_run_with_trajectory(runs_dir: Path, tmp_path: 
     assert cfg["scenario"]["kind"] == "hold"
 
 
+@pytest.mark.long
 def test_multirun_sweep_makes_one_run_per_job(runs_dir: Path) -> None:
     rc = main(
         ["simulate", "-m", "seed=0,1", "scenario.duration=0.06", f"tracking.runs_dir={runs_dir}"]
@@ -136,6 +138,7 @@ def test_multirun_sweep_makes_one_run_per_job(runs_dir: Path) -> None:
     assert (runs_dir / "hydra" / "multirun").is_dir()
 
 
+@pytest.mark.long
 def test_tune_stage_logs_history_gains_and_artifacts(runs_dir: Path, tmp_path: Path) -> None:
     rc = main(
         [

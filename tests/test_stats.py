@@ -82,6 +82,7 @@ def _loop_bootstrap(scores: np.ndarray, n_boot: int, seed: int) -> list[float]:
     return out
 
 
+@pytest.mark.long
 def test_multi_task_bootstrap_distribution_matches_loop_implementation() -> None:
     # Tasks on very different scales, so pooled (unstratified) resampling would differ.
     scores = _data((8, 3), seed=3) * np.array([1.0, 3.0, 0.5]) + np.array([0.0, 10.0, -4.0])

@@ -112,6 +112,7 @@ def test_a_new_folder_at_a_moved_projects_old_path_leaves_both_whole(tmp_path: P
         assert readable(runs, run_id, tmp_path).read_text().startswith("seed:")
 
 
+@pytest.mark.long
 def test_an_archived_store_unpacked_elsewhere_reads_and_writes_in_place(tmp_path: Path) -> None:
     proj = tmp_path / "proj"
     a = simulate(proj / "runs")
@@ -136,6 +137,7 @@ def _make_old(runs: Path) -> None:
         con.execute("DELETE FROM experiment_tags WHERE key = ?", (ANCHOR_TAG,))
 
 
+@pytest.mark.long
 def test_an_old_absolute_store_is_migrated_when_opened_after_a_copy(tmp_path: Path) -> None:
     proj, copy = tmp_path / "proj", tmp_path / "proj2"
     a = simulate(proj / "runs")
@@ -151,6 +153,7 @@ def test_an_old_absolute_store_is_migrated_when_opened_after_a_copy(tmp_path: Pa
     assert readable(copy / "runs", a, tmp_path).is_file()
 
 
+@pytest.mark.long
 def test_an_old_store_keeps_artifacts_an_earlier_armexp_wrote_into_its_original(
     tmp_path: Path,
 ) -> None:
@@ -170,6 +173,7 @@ def test_an_old_store_keeps_artifacts_an_earlier_armexp_wrote_into_its_original(
     assert readable(copy / "runs", b, tmp_path).is_file()
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("spelt", ["path", "uri"])
 def test_an_artifact_root_of_the_users_choosing_stays_where_it_is(
     tmp_path: Path, spelt: str
@@ -187,6 +191,7 @@ def test_an_artifact_root_of_the_users_choosing_stays_where_it_is(
     assert exp is not None and anchor.local_path(exp.artifact_location) == root
 
 
+@pytest.mark.long
 def test_an_old_store_with_a_chosen_root_is_not_re_anchored(tmp_path: Path) -> None:
     root = tmp_path / "big_disk" / "artifacts"
     proj, moved = tmp_path / "proj", tmp_path / "proj2"
@@ -203,6 +208,7 @@ def test_an_old_store_with_a_chosen_root_is_not_re_anchored(tmp_path: Path) -> N
     }
 
 
+@pytest.mark.long
 def test_a_changed_artifact_root_on_an_existing_store_is_one_sentence(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -218,6 +224,7 @@ def test_a_changed_artifact_root_on_an_existing_store_is_one_sentence(
     assert len(stage_runs(runs, "simulate")) == 1 and not other.exists()
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("value", ["~/x", "'~/x'"])  # as the shell passes it, Hydra-quoted
 def test_a_tilde_runs_dir_is_the_home_folder(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, value: str
@@ -348,6 +355,7 @@ def _hold(db: Path, release: threading.Event) -> threading.Thread:
     return thread
 
 
+@pytest.mark.long
 def test_a_store_busy_with_another_writer_says_so_and_is_not_called_damaged(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -388,6 +396,7 @@ def test_a_store_busy_for_a_while_is_waited_for(
     assert len(stage_runs(runs, "simulate")) == 2
 
 
+@pytest.mark.long
 def test_an_artifacts_folder_that_cannot_be_written_is_one_sentence(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     simulate(runs)

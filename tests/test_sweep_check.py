@@ -40,6 +40,7 @@ def stop_before_the_sweep(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sweeps, "open_sweep", stop)
 
 
+@pytest.mark.long
 def test_a_200_job_sweep_is_composed_once_per_choice_of_groups(
     runs_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -56,6 +57,7 @@ def test_a_200_job_sweep_is_composed_once_per_choice_of_groups(
     assert len(calls) <= 2 * 2 + 1
 
 
+@pytest.mark.long
 def test_jobs_composed_from_a_shared_composition_equal_hydras(tmp_path: Path) -> None:
     from armexp.config.jobs import JobComposer
 
@@ -73,6 +75,7 @@ def test_jobs_composed_from_a_shared_composition_equal_hydras(tmp_path: Path) ->
     assert composer.compositions == 2 * 4
 
 
+@pytest.mark.long
 def test_a_bad_value_in_a_shared_composition_is_the_same_sentence(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

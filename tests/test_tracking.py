@@ -127,6 +127,7 @@ def test_a_corrupt_store_is_one_sentence(
     assert (runs / "mlflow.db").read_text() == "not a database"  # left for the user to inspect
 
 
+@pytest.mark.long
 def test_a_moved_store_finds_its_artifacts_and_writes_new_ones_beside_them(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -162,6 +163,7 @@ def test_a_runs_dir_that_cannot_be_written_is_one_sentence(
     assert len(err) == 1 and "is not allowed: armexp cannot write there" in err[0]
 
 
+@pytest.mark.long
 def test_a_read_only_runs_dir_is_one_sentence_and_nothing_is_written(tmp_path: Path) -> None:
     """Permission bits bind root only without CAP_DAC_OVERRIDE: as root, the command runs with
     that capability dropped (``setpriv``); as another user, the bits bind anyway."""

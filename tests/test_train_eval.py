@@ -69,6 +69,7 @@ def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(
     assert action.shape == (2,) and np.all(np.abs(action) <= 1)
 
 
+@pytest.mark.long
 def test_eval_logs_per_label_metrics_trajectories_and_controllers(
     store: Path, tmp_path: Path
 ) -> None:
@@ -147,6 +148,7 @@ def test_eval_without_a_train_run_is_one_sentence(
     assert err.count("\n") == 0 and "eval.train_run" in err and "armexp train" in err
 
 
+@pytest.mark.long
 def test_train_with_paper_gains_needs_no_tune_run(runs_dir: Path) -> None:
     rc = main(
         [
@@ -172,6 +174,7 @@ def test_train_with_paper_gains_needs_no_tune_run(runs_dir: Path) -> None:
     assert run.data.metrics["final/held_out_success"] == last
 
 
+@pytest.mark.long
 def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -220,6 +223,7 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     assert steps == sorted(steps)
 
 
+@pytest.mark.long
 def test_resume_of_a_finished_run_is_refused(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -266,6 +270,7 @@ def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstration
     assert run.data.params["agent.gradients"] == gradients
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     ("aids", "wrong"),
     [
@@ -285,6 +290,7 @@ def test_a_bad_aid_is_one_sentence_before_any_run(
     assert not (runs_dir / "mlflow.db").exists()  # stopped before the store was opened
 
 
+@pytest.mark.long
 def test_parallel_environments_log_one_row_per_episode(runs_dir: Path) -> None:
     """8 environments with 10-step episodes end their episodes on the same steps with the same
     values; every episode still gets its own metric row."""
@@ -301,6 +307,7 @@ def test_parallel_environments_log_one_row_per_episode(runs_dir: Path) -> None:
         assert len(client.get_metric_history(run.info.run_id, key)) == episodes, key
 
 
+@pytest.mark.long
 def test_a_full_disk_fails_the_run_with_one_sentence(
     runs_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -322,6 +329,7 @@ def test_a_full_disk_fails_the_run_with_one_sentence(
     assert run.data.metrics["rollout/episodes"] > 0  # what it logged before is kept
 
 
+@pytest.mark.long
 def test_an_interrupted_eval_keeps_the_episodes_it_ran(
     runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -345,6 +353,7 @@ def test_an_interrupted_eval_keeps_the_episodes_it_ran(
     assert list(rows.task) == ["a", "b", "c"] and set(rows.controller) == {"adaptive"}
 
 
+@pytest.mark.long
 def test_eval_does_not_take_a_policy_trained_among_other_obstacles(
     runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -79,21 +79,34 @@ def process_identity() -> str:
     return f"{socket.gethostname()}:{pid}:{_process_start(pid) or ''}"
 
 
-def process_gone(identity: str | None) -> bool:
-    """True when `identity` names a process on this host that no longer runs. A process on
-    another host, or one this platform cannot look up, is not known gone."""
+def _running_here(identity: str | None) -> bool | None:
+    """Whether `identity` names a process that runs on this host now; None when that cannot be
+    told here (no identity, another host, a platform without /proc)."""
     if not identity:
-        return False
+        return None
     host, _, rest = identity.partition(":")
     pid_text, _, start = rest.partition(":")
     if host != socket.gethostname() or not pid_text.isdigit() or not start:
-        return False
-    return _process_start(int(pid_text)) != start
+        return None
+    if _process_start(os.getpid()) is None:
+        return None  # this platform cannot look processes up
+    return _process_start(int(pid_text)) == start
+
+
+def process_gone(identity: str | None) -> bool:
+    """True when `identity` names a process on this host that no longer runs. A process on
+    another host, or one this platform cannot look up, is not known gone."""
+    return _running_here(identity) is False
 
 
 def is_alive(run: Run) -> bool:
-    """A RUNNING run whose process is not known gone (`PROCESS_TAG`) and reported within
-    `STALE_S`."""
-    if run.info.status != "RUNNING" or process_gone(run.data.tags.get(PROCESS_TAG)):
+    """A RUNNING run whose process still runs on this host, or, where that cannot be told (its
+    process on another host), one that reported within `STALE_S`. A process on this host that is
+    alive but silent (stopped with SIGSTOP, a suspended machine) is alive: silence alone is the
+    evidence only from elsewhere."""
+    if run.info.status != "RUNNING":
         return False
+    here = _running_here(run.data.tags.get(PROCESS_TAG))
+    if here is not None:
+        return here
     return heartbeat_age(run) < STALE_S
