@@ -35,6 +35,7 @@ def _frames(gif: Path) -> int:
         return int(image.n_frames)
 
 
+@pytest.mark.long
 def test_eval_animates_each_paper_task_for_every_label(store: Path, tmp_path: Path) -> None:
     (ev,) = stage_runs(store, "eval")
     for label in ("adaptive", "adaptive_off", pid_baseline()):

@@ -39,6 +39,7 @@ def _download(runs_dir: Path, run_id: str, path: str, dst: Path) -> Path:
     )
 
 
+@pytest.mark.long
 def test_train_run_finishes_with_metrics_lineage_and_a_loadable_model(
     store: Path, tmp_path: Path
 ) -> None:
