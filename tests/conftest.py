@@ -1,5 +1,11 @@
 from __future__ import annotations
 
+import os
+
+# Two pytest-xdist workers share a 2-core machine: one torch thread each, here and in the armexp
+# processes tests start, so that neither spins threads waiting for a core the other holds.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 from collections.abc import Callable
 from pathlib import Path
 
