@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import pandas as pd
+    import pytest
 
 SMALL_TUNE = [
     "tuner=cso_fast",
@@ -31,6 +32,21 @@ def plain_train(runs_dir: Path, *overrides: str) -> list[str]:
     gains, stored under ``runs_dir``, with ``overrides`` (an aid, say) after them."""
     return ["train", *SMALL_TRAIN, "agent.privileged=false", "train.gains=config",
             "controller.gains=paper", *overrides, f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+
+
+def refused_in_one_sentence(
+    runs_dir: Path, capsys: pytest.CaptureFixture[str], argv: list[str], *words: str
+) -> None:
+    """`armexp` with ``argv`` exits 2 with one line on stderr holding each of ``words``, and the
+    store under ``runs_dir`` gains no train run."""
+    from armexp.cli import main
+
+    before = len(stage_runs(runs_dir, "train"))
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and all(word in err for word in words), err
+    assert len(stage_runs(runs_dir, "train")) == before
 
 
 def row_at(frame: pd.DataFrame, key: tuple[Any, ...]) -> pd.Series:

@@ -15,7 +15,7 @@ from armexp.cli import main
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachEnv, ReachSettings
-from tests.helpers import plain_train, stage_runs
+from tests.helpers import plain_train, refused_in_one_sentence, stage_runs
 
 MISSED = (
     "+agent.aids.missed_targets={_target_:armexp.agents.curriculum.MissedTargets,"
@@ -104,9 +104,5 @@ def test_a_non_privileged_preset_trains_with_the_aid_and_bad_values_are_one_sent
     # 600 steps of 20-step episodes on the smoke preset's environments: about 30 episodes, most
     # of them missed; half of the draws after a miss come back.
     assert run.data.metrics["final/retried_episodes"] >= 3
-    capsys.readouterr()
-    bad = MISSED.replace("share:0.5", "share:1.5")
-    assert main(plain_train(runs_dir, bad)) == 2
-    err = capsys.readouterr().err.strip()
-    assert "agent.aids.missed_targets" in err and "share=1.5" in err and "\n" not in err
-    assert len(stage_runs(runs_dir, "train")) == 1
+    bad = plain_train(runs_dir, MISSED.replace("share:0.5", "share:1.5"))
+    refused_in_one_sentence(runs_dir, capsys, bad, "agent.aids.missed_targets", "share=1.5")
