@@ -70,6 +70,14 @@ EXPERT = AidDeclaration(
     lambda a: "DAgger: the planner's action cloned on every visited state",
     frozenset({"sac"}),  # it adds to what the cloning aid clones
 )  # fmt: skip
+PRETRAINING = AidDeclaration(
+    "pretraining", "armexp.agents.pretraining.DemonstrationPretraining", True, "pre-training",
+    lambda a: (
+        f"{int(number_arg(a, 'gradient_steps'))} gradient steps on the demonstrations before the "
+        "first environment step"
+    ),
+    OFF_POLICY,  # it trains on the replay buffer the demonstrations filled
+)  # fmt: skip
 AVERAGING = AidDeclaration(
     "averaging", "armexp.agents.averaging.WeightAveraging", False, "weight averaging",
     lambda a: (
@@ -122,8 +130,8 @@ COLOURED_NOISE = AidDeclaration(
 )  # fmt: skip
 
 #: Every aid, in the order the presets list them.
-AIDS = (DEMONSTRATIONS, CLONING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS, RANDOM_STARTS,
-        HER, COLOURED_NOISE)  # fmt: skip
+AIDS = (DEMONSTRATIONS, CLONING, PRETRAINING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS,
+        RANDOM_STARTS, HER, COLOURED_NOISE)  # fmt: skip
 
 
 def declared(target: str) -> AidDeclaration | None:

@@ -511,6 +511,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
             for a in aids.AIDS
             if a
             not in (
+                aids.PRETRAINING,
                 aids.CURRICULUM,
                 aids.MISSED_TARGETS,
                 aids.RANDOM_STARTS,
@@ -524,13 +525,14 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
         assert issubclass(addon, TrainingAddOn) and addon.declaration is declaration
         assert aids.declared(declaration.name) is aids.declared(declaration.target) is declaration
     assert {a.name: a.privileged for a in aids.AIDS} == {
-        "demonstrations": True, "cloning": True, "expert": True, "averaging": False,
-        "curriculum": False, "missed_targets": False, "random_starts": False, "her": False,
-        "coloured_noise": False,
+        "demonstrations": True, "cloning": True, "pretraining": True, "expert": True,
+        "averaging": False, "curriculum": False, "missed_targets": False, "random_starts": False,
+        "her": False, "coloured_noise": False,
     }  # fmt: skip
     assert aids.declared("armexp.agents.expert.ExpertLabels") is None
     assert aids.privileged_modules() == (
-        "armexp.agents.demonstrations", "armexp.agents.cloning", "armexp.agents.expert",
+        "armexp.agents.demonstrations", "armexp.agents.cloning", "armexp.agents.pretraining",
+        "armexp.agents.expert",
     )  # fmt: skip
 
 

@@ -243,6 +243,7 @@ def test_resume_of_a_finished_run_is_refused(
 AIDS = {
     "demonstrations": "{_target_:armexp.agents.demonstrations.PlannerDemonstrations,episodes:6}",
     "cloning": "{_target_:armexp.agents.cloning.BehaviourCloning,weight:0.5}",
+    "pretraining": "{_target_:armexp.agents.pretraining.DemonstrationPretraining,gradient_steps:6}",
     "expert": "{_target_:armexp.agents.expert.DaggerExpert}",
 }
 
@@ -268,6 +269,7 @@ def test_train_with_demonstrations_cloning_and_the_expert_logs_the_demonstration
     assert m["demonstrations/steps"] > 6 * 50  # whole episodes of seconds, not single steps
     # The demonstrations do not count as the agent's own environment steps.
     assert m["final/env_steps"] <= 152
+    assert m["pretraining/gradient_steps"] == 6  # before the first environment step
     assert run.data.params["agent.gradients"] == gradients
 
 
