@@ -160,3 +160,39 @@ def test_a_stopped_process_on_this_host_keeps_its_run_however_long_it_is_silent(
     finally:
         os.kill(sleeper.pid, signal.SIGKILL)
         sleeper.wait(timeout=60)
+
+
+@pytest.mark.long
+def test_a_run_closed_for_dead_that_goes_on_to_finish_keeps_no_error_tag(tmp_path: Path) -> None:
+    """Another host took the run's silent process for dead and marked it FAILED; the stage (or
+    the HPO trial) then finished: its run ends FINISHED without that error."""
+    import mlflow
+
+    from armexp.hpo.record import close_trial
+    from armexp.tracking import run_end
+
+    runs = tmp_path / "runs"
+    assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
+                 f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
+    uri = f"sqlite:///{runs / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("armexp")
+    assert exp is not None
+    silent = {STAGE_TAG: "train", PROCESS_TAG: "another-host:4242:1",
+              HEARTBEAT_TAG: f"{time.time() - 10 * liveness.STALE_S:.0f}"}  # fmt: skip
+    mlflow.set_tracking_uri(uri)
+    stage = mlflow.start_run(experiment_id=exp.experiment_id, tags=silent).info.run_id
+    trial = client.create_run(exp.experiment_id, tags=silent).info.run_id
+    assert sorted(close_orphans(client, exp.experiment_id)) == sorted([stage, trial])
+    for run_id in (stage, trial):
+        closed = client.get_run(run_id)
+        assert closed.info.status == "FAILED" and "no heartbeat" in closed.data.tags["armexp.error"]
+    run_end.end_run(stage, "FINISHED")
+    close_trial(client, trial, "COMPLETE", {0: 0.5, 1: 0.7}, 0.6)
+    for run_id in (stage, trial):
+        finished = client.get_run(run_id)
+        assert finished.info.status == "FINISHED" and "armexp.error" not in finished.data.tags
+    # A trial that failed keeps its error.
+    failed = client.create_run(exp.experiment_id).info.run_id
+    close_trial(client, failed, "FAIL", {}, None, "ValueError: boom")
+    assert client.get_run(failed).data.tags["armexp.error"] == "ValueError: boom"

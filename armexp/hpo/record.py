@@ -93,6 +93,7 @@ def close_trial(
     from mlflow.entities import Metric
 
     from armexp.tracking import artifacts, store
+    from armexp.tracking.run_end import clear_error
     from armexp.tracking.tags import ERROR_TAG
 
     now = int(time.time() * 1000)
@@ -104,6 +105,8 @@ def close_trial(
     if error:
         store.retry(lambda: client.set_tag(run_id, ERROR_TAG, error[:5000]))
     status = {"COMPLETE": "FINISHED", "PRUNED": "FINISHED", "INTERRUPTED": "KILLED"}
+    if status.get(state) == "FINISHED":
+        clear_error(client, run_id)
     store.retry(lambda: client.set_terminated(run_id, status.get(state, "FAILED")))
 
 

@@ -34,10 +34,21 @@ class RunInterrupted(KeyboardInterrupt):
         self.run_id, self.unmarked = run_id, unmarked
 
 
+def clear_error(client: MlflowClient, run_id: str) -> None:
+    """Drop ``armexp.error`` from a run that ends FINISHED: a command that took its process for
+    dead (`armexp.tracking.stage_runs.close_orphans`, from another host after a long silence)
+    marked it FAILED with that tag, and the run went on to finish."""
+    if ERROR_TAG in retry(lambda: client.get_run(run_id)).data.tags:
+        retry(lambda: client.delete_tag(run_id, ERROR_TAG))
+
+
 def end_run(run_id: str, status: str) -> None:
     """`mlflow.end_run`, with the status write retried on a SQLite lock (a reader such as the
     MLflow UI, or another job, holding the store): end_run pops the active run before it writes,
-    so a failed write is repeated through the client instead of calling end_run again."""
+    so a failed write is repeated through the client instead of calling end_run again. A run
+    that ends FINISHED keeps no error tag (`clear_error`)."""
+    if status == "FINISHED":
+        clear_error(MlflowClient(), run_id)
     try:
         mlflow.end_run(status=status)
     except Exception as exc:
