@@ -16,6 +16,9 @@ step per call (entropy, critics, actor, target averaging), without actor terms:
 - ``fn-adam``: ``agent.gradients=compiled`` (`armexp.agents.compiled`), Adam in the graph, with
   graph breaks allowed; ``fn-adam-full`` as the product runs it (``fullgraph``, static shapes);
   ``fn-adam-full-xK``: the preset's K gradient steps of a call in one graph, as training calls it;
+- ``fn-cpp``, ``fn-tensor-guards``, ``fn-no-guards`` (``-xK`` as above): the product's graph with
+  inductor's C++ wrapper, with Dynamo's guards on tensors only, with none (`VARIANTS`; measured
+  in `docs/update_paths.md`, run 5, not used by training);
 - ``compile`` and ``compile-max``: the update as one function of the batch and the policy noise
   (`TorchUpdate`) through ``torch.compile`` in its ``default`` and
   ``max-autotune-no-cudagraphs`` modes; ``eager-func`` is that function uncompiled;
@@ -62,6 +65,13 @@ from benchmarks.pace import measure
 from benchmarks.update_variants import TorchUpdate, update_flops
 
 PRESETS = ("sac_demo", "sac_quick", "sac_paper")
+#: The product's graph (`fn-adam-full`) with other compiler options: inductor's C++ wrapper (the
+#: kernels called from C++, not Python), and Dynamo checking only its guards on tensors or none.
+VARIANTS: dict[str, Callable[[], dict[str, Any]]] = {
+    "fn-cpp": lambda: {"cpp_wrapper": True},
+    "fn-tensor-guards": lambda: {"guard_filter_fn": torch.compiler.keep_tensor_guards_unsafe},
+    "fn-no-guards": lambda: {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe},
+}
 FILLED = 30_000  # transitions in every replay buffer
 CHECK_STEPS = 3
 # One core for XLA as for torch; read when jax is first imported (lazily, by the sbx path).
@@ -111,6 +121,7 @@ def _torch_paths(agent: DictConfig, env: DummyVecEnv, skip: set[str]) -> list[Pa
     k = int(agent.gradient_steps)
     names = ["sb3", "autograd", "eager-func", "compile", "compile-max",
              "fn-adam", "fn-adam-full"] + ([f"fn-adam-full-x{k}"] if k > 1 else [])  # fmt: skip
+    names += [f"{v}-x{k}" if k > 1 else v for v in VARIANTS]
     for name in names:
         if name in skip:
             continue
@@ -127,10 +138,13 @@ def _torch_paths(agent: DictConfig, env: DummyVecEnv, skip: set[str]) -> list[Pa
             mode = {"eager-func": "eager", "compile": None}.get(name, "max-autotune-no-cudagraphs")
             update = TorchUpdate(model, mode)
             paths.append(Path(name, functools.partial(update.train, n), model=update))
-        elif name.startswith("fn-adam"):
+        elif name.startswith("fn-"):
             # `CompiledUpdate` (agent.gradients=compiled): Adam written in the graph; with
             # fullgraph and static shapes; xK: the preset's K gradient steps in one graph.
             full: dict[str, Any] = {} if "full" in name else {"fullgraph": False, "dynamic": None}
+            variant = name.rsplit("-x", 1)[0]
+            if variant in VARIANTS:
+                full = {"options": VARIANTS[variant]()}
             model._compiled = CompiledUpdate(model, **full)
             steps = k if name.endswith(f"x{k}") and k > 1 else 1
             paths.append(Path(name, functools.partial(model.train, steps, n), per_call=steps,
@@ -239,7 +253,7 @@ def _check(paths: list[Path], n: int) -> None:
             dg = math.nan
         ok = all(torch.allclose(a, b, rtol=1e-4, atol=1e-5) for a, b in zip(params, ref_params,
                                                                           strict=True))  # fmt: skip
-        print(f"    {p.name:<12} losses {dl:.1e}  gradients {dg:.1e}  weights {dp:.1e}  "
+        print(f"    {p.name:<20} losses {dl:.1e}  gradients {dg:.1e}  weights {dp:.1e}  "
               f"weights allclose: {ok}")  # fmt: skip
 
 
@@ -285,13 +299,13 @@ def run_preset(
     floor = flops / (gflops * 1e9) * 1e3
     sb3 = next(p for p in paths if p.name == "sb3")
     print(f"  floor: {flops / 1e6:.1f} MFLOP per step at {gflops:.1f} GFLOP/s = {floor:.2f} ms")
-    print(f"  {'path':<12}{'ms/step':>9}{'sb3/path':>10}{'path/floor':>12}{'cpu/wall':>10}"
+    print(f"  {'path':<20}{'ms/step':>9}{'sb3/path':>10}{'path/floor':>12}{'cpu/wall':>10}"
           f"{'first call s':>14}")  # fmt: skip
     for p in paths:
         ms = statistics.median(p.wall)
         speedup = statistics.median(a / b for a, b in zip(sb3.wall, p.wall, strict=True))
         usage = statistics.median(c / w for c, w in zip(p.cpu, p.wall, strict=True))
-        print(f"  {p.name:<12}{ms:>9.2f}{speedup:>10.2f}{ms / floor:>12.2f}{usage:>10.2f}"
+        print(f"  {p.name:<20}{ms:>9.2f}{speedup:>10.2f}{ms / floor:>12.2f}{usage:>10.2f}"
               f"{p.first_s:>14.2f}")  # fmt: skip
     if explain:
         torch_update = [p.model for p in paths if isinstance(p.model, TorchUpdate)]
