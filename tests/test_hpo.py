@@ -280,6 +280,28 @@ def test_the_optuna_sweeper_runs_2_trials_through_the_launcher(runs_dir: Path) -
     assert "best_value" in results.read_text()
 
 
+@pytest.mark.long
+def test_the_optuna_sweeper_goes_on_in_the_hpo_run_a_stopped_search_left(runs_dir: Path) -> None:
+    """Run again after a stop (the HPO run FAILED with an error tag, as a signal leaves it),
+    the sweep continues the study in the same HPO run, which ends FINISHED without the tag."""
+    args = ["train", "-m", "hydra/sweeper=optuna", "hydra/sweeper/sampler=random",
+            "hydra.sweeper.sampler.seed=3", "agent=sac_smoke", "controller.gains=paper",
+            "train.progress=false", *TINY, "agent.learning_rate=tag(log, interval(1e-4, 1e-2))",
+            f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+    assert main([*args, "hydra.sweeper.n_trials=1"]) == 0
+    (hpo,) = stage_runs(runs_dir, "hpo")
+    client = _client(runs_dir)
+    client.set_tag(hpo.info.run_id, "armexp.error", "interrupted")
+    client.set_terminated(hpo.info.run_id, "FAILED")
+    assert main([*args, "hydra.sweeper.n_trials=2"]) == 0
+    (again,) = stage_runs(runs_dir, "hpo")
+    assert again.info.run_id == hpo.info.run_id
+    assert again.info.status == "FINISHED"
+    assert "armexp.error" not in again.data.tags
+    assert len(stage_runs(runs_dir, "trial")) == 2
+    assert [t.state.name for t in _study(runs_dir).trials] == ["COMPLETE"] * 2
+
+
 SMOKE = ["hpo", "hpo=smoke"]
 SWEEP = ["train", "-m", "hydra/sweeper=optuna", "train.eval_every=100"]
 

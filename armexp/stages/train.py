@@ -55,13 +55,12 @@ from armexp.config import ConfigError
 from armexp.envs.factory import settings_from_config
 from armexp.gains import job_overrides, resolve, with_train_source
 from armexp.reads import Reads
-from armexp.tracking import artifacts, liveness, lookup, remote, run_end, stage_runs, store
+from armexp.tracking import artifacts, liveness, lookup, remote, run_end, stage_runs
 from armexp.tracking.tags import (
     AGENT_ALGO_TAG,
     AGENT_LEFT_OUT_TAG,
     AGENT_MAPPED_TAG,
     AGENT_PRESET_TAG,
-    ERROR_TAG,
     GAINS_SOURCE_TAG,
     RESUMED_TAG,
     STOP_REASON_TAG,
@@ -176,9 +175,8 @@ def resume(composed: DictConfig, check_overrides: bool = True) -> stage_runs.Sta
         extra_tags={RESUMED_TAG: str(state["num_timesteps"])},
         reads=READS,
     ):
-        if ERROR_TAG in found.data.tags:
-            # The interruption that stopped it is over: the run ends with its own new status.
-            store.retry(lambda: mlflow.MlflowClient().delete_tag(run_id, ERROR_TAG))
+        # The interruption that stopped it is over: the run ends with its own new status.
+        run_end.clear_error(mlflow.MlflowClient(), run_id)
         origin = _gains_from(found.data.tags)
         summary = _learn(READS.view(original), gains, run_id, str(model_path), state, origin)
         return stage_runs.StageResult(run_id, summary)

@@ -89,6 +89,7 @@ def open_sweep(
 
     from armexp.config import compose_config
     from armexp.tracking import liveness, stage_runs, store
+    from armexp.tracking.run_end import clear_error
 
     cfg = compose_config([*search_path, *fixed_overrides(overrides)])
     experiment_id = stage_runs.setup(cfg)
@@ -105,8 +106,7 @@ def open_sweep(
         store.retry(lambda: client.update_run(reopen, status="RUNNING"))
         for key, value in own.items():
             store.retry(lambda k=key, v=value: client.set_tag(reopen, k, v))  # type: ignore[misc]
-        if ERROR_TAG in client.get_run(reopen).data.tags:
-            store.retry(lambda: client.delete_tag(reopen, ERROR_TAG))
+        clear_error(client, reopen)
         print(f"armexp {stage}: sweep run {sweep_id} continues with the jobs of this multirun")
     else:
         name = run_name or f"sweep-{stage}"
