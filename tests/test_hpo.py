@@ -109,6 +109,20 @@ def test_a_3_trial_hpo_writes_3_trial_runs_under_one_hpo_run_and_resumes(runs_di
     assert f"Trial {int(best[1].split(',')[0])}'s values, to train on fresh seeds" in shown
     assert "`agent.learning_rate=" in shown and " agent.gamma=" in shown
 
+    # An eval run in the store joins the report only when a selection names it.
+    evaluate = ["eval", "controller.gains=paper", "eval.baseline_gains=config",
+                "eval.baselines=[]", "tasks.n_random=1", where]  # fmt: skip
+    assert main(evaluate) == 0
+    assert main(["report", f"report.hpo_runs=[{hpo.info.run_id}]", where]) == 0
+    assert not (report / "runs.csv").exists()
+    assert not list((report / "figures").glob("fig3*"))
+    (evaluated,) = stage_runs(runs_dir, "eval")
+    both = ["report", f"report.hpo_runs=[{hpo.info.run_id}]",
+            f"report.eval_runs=[{evaluated.info.run_id}]", where]  # fmt: skip
+    assert main(both) == 0
+    assert (report / "runs.csv").exists()
+    assert (report / "figures" / f"hpo_objective_{tag}.png").stat().st_size > 0
+
 
 @pytest.mark.long
 def test_two_processes_share_one_study_and_one_hpo_run(runs_dir: Path) -> None:

@@ -182,7 +182,8 @@ class ReportStageConfig:
     #: Experiment to read (None: ``tracking.experiment``).
     experiment: str | None = None
     #: HPO runs (`armexp hpo`, ``hydra/sweeper=optuna``) whose best trials, objective and
-    #: parameter importances the report adds; with no eval runs to read, a report of these alone.
+    #: parameter importances the report adds: beside the eval runs of a selection set above, or
+    #: without one a report of these alone.
     hpo_runs: list[str] = field(default_factory=list)
     fig6_task: str = checked("a", one_of("a", "b", "c", "d"))
     #: The seeds the selection should hold (a study sets them): those without a FINISHED eval

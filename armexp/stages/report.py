@@ -18,7 +18,6 @@ import mlflow
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
-from armexp.config import ConfigError
 from armexp.report import figures, folder, hpo
 from armexp.report.folder import MARKER
 from armexp.report.page import build
@@ -36,20 +35,19 @@ def out_dir(cfg: DictConfig) -> Path:
 
 def run(cfg: DictConfig) -> stage_runs.StageResult:
     uri = store.store_uri(cfg)
-    client = MlflowClient(uri)
-    try:
-        selection = select(
-            client,
-            str(cfg.report.experiment or cfg.tracking.experiment),
-            pipeline_run=cfg.report.pipeline_run,
-            eval_runs=[str(r) for r in cfg.report.eval_runs],
-            filter_string=cfg.report.filter,
-            store=store.hide_password(uri),
-        )
-    except ConfigError:
-        if not cfg.report.hpo_runs or cfg.report.eval_runs or cfg.report.pipeline_run:
-            raise
+    chosen = cfg.report.eval_runs or cfg.report.pipeline_run or cfg.report.filter
+    if cfg.report.hpo_runs and not chosen:
+        # Named HPOs with no eval selection: the report of those, not beside whichever eval
+        # run the store happens to hold last.
         return _hpo_only(cfg, uri)
+    selection = select(
+        MlflowClient(uri),
+        str(cfg.report.experiment or cfg.tracking.experiment),
+        pipeline_run=cfg.report.pipeline_run,
+        eval_runs=[str(r) for r in cfg.report.eval_runs],
+        filter_string=cfg.report.filter,
+        store=store.hide_password(uri),
+    )
     target = out_dir(cfg)
     folder.check(target)
     # Built beside the target and swapped in when complete: an interrupted or failed report
@@ -76,7 +74,7 @@ def run(cfg: DictConfig) -> stage_runs.StageResult:
 
 
 def _hpo_only(cfg: DictConfig, uri: str) -> stage_runs.StageResult:
-    """A report of ``report.hpo_runs`` alone, when there are no eval runs to read."""
+    """A report of ``report.hpo_runs`` alone (no eval run selection given)."""
     target = out_dir(cfg)
     folder.check(target)
     reader = Reader(uri)
