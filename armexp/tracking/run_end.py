@@ -35,9 +35,10 @@ class RunInterrupted(KeyboardInterrupt):
 
 
 def clear_error(client: MlflowClient, run_id: str) -> None:
-    """Drop ``armexp.error`` from a run that ends FINISHED: a command that took its process for
-    dead (`armexp.tracking.stage_runs.close_orphans`, from another host after a long silence)
-    marked it FAILED with that tag, and the run went on to finish."""
+    """Drop ``armexp.error`` from a run that ends FINISHED or is continued: a command that took
+    its process for dead (`armexp.tracking.stage_runs.close_orphans`, from another host after a
+    long silence) marked it FAILED with that tag and the run went on to finish, or a stopped
+    run (a train run resumed, a sweep's run reopened) goes on under its new status."""
     if ERROR_TAG in retry(lambda: client.get_run(run_id)).data.tags:
         retry(lambda: client.delete_tag(run_id, ERROR_TAG))
 
