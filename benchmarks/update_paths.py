@@ -29,9 +29,12 @@ The paths run interleaved (``--calls`` calls of each in turn, ``--rounds`` times
 load on the machine falls on all of them; the table gives medians over rounds, the ratio to
 ``sb3`` in the same round, process CPU time over wall time (above 1: more than one thread
 worked), and the ratio to the floor: the update's matrix-product FLOPs (`update_flops`) at one
-core's matmul rate measured in this run (`benchmarks.pace`). Before timing, every torch path
-takes the same three steps from the same initial weights and batches, and the script prints the
-largest difference of its losses, gradients and weights from ``autograd``'s.
+core's matmul rate measured in this run (`benchmarks.pace`). Two more columns come from
+``torch.profiler`` over ``--calls`` further calls of each torch path: ``matmul ms``, the time per
+step inside its matrix-product kernels, and ``sb3/matmul``, SB3's time over that: the most the
+path could beat SB3 by were everything but its products free (its ceiling). Before timing, every
+torch path takes the same three steps from the same initial weights and batches, and the script
+prints the largest difference of its losses, gradients and weights from ``autograd``'s.
 """
 
 from __future__ import annotations
@@ -275,6 +278,21 @@ def _time(paths: list[Path], rounds: int, calls: int) -> None:
             p.cpu.append((time.process_time() - cpu) / steps * 1e3)
 
 
+MATMULS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
+
+
+def _matmul_ms(path: Path, calls: int) -> float:
+    """Milliseconds per gradient step that ``path`` spends inside matrix-product kernels
+    (``torch.profiler``'s self CPU time of the aten products over ``calls`` calls)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(calls):
+            path.step()
+    us = sum(e.self_cpu_time_total for e in prof.key_averages() if e.key in MATMULS)
+    return us / 1e3 / (calls * path.per_call)
+
+
 def run_preset(
     preset: str, rounds: int, calls: int, gflops: float, skip: set[str], explain: bool
 ) -> None:
@@ -300,13 +318,17 @@ def run_preset(
     sb3 = next(p for p in paths if p.name == "sb3")
     print(f"  floor: {flops / 1e6:.1f} MFLOP per step at {gflops:.1f} GFLOP/s = {floor:.2f} ms")
     print(f"  {'path':<20}{'ms/step':>9}{'sb3/path':>10}{'path/floor':>12}{'cpu/wall':>10}"
-          f"{'first call s':>14}")  # fmt: skip
+          f"{'first call s':>14}{'matmul ms':>11}{'sb3/matmul':>12}")  # fmt: skip
     for p in paths:
         ms = statistics.median(p.wall)
         speedup = statistics.median(a / b for a, b in zip(sb3.wall, p.wall, strict=True))
         usage = statistics.median(c / w for c, w in zip(p.cpu, p.wall, strict=True))
+        # The path's own matrix products, and the most it could beat SB3 by if nothing else
+        # (kernels, guards, sampling, Python) took any time: its ceiling at these products.
+        mm = _matmul_ms(p, calls) if isinstance(p.model, ResumableSAC) else math.nan
+        ceiling = statistics.median(sb3.wall) / mm
         print(f"  {p.name:<20}{ms:>9.2f}{speedup:>10.2f}{ms / floor:>12.2f}{usage:>10.2f}"
-              f"{p.first_s:>14.2f}")  # fmt: skip
+              f"{p.first_s:>14.2f}{mm:>11.2f}{ceiling:>12.2f}")  # fmt: skip
     if explain:
         torch_update = [p.model for p in paths if isinstance(p.model, TorchUpdate)]
         if torch_update:
