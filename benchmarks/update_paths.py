@@ -325,7 +325,7 @@ def run_preset(
         usage = statistics.median(c / w for c, w in zip(p.cpu, p.wall, strict=True))
         # The path's own matrix products, and the most it could beat SB3 by if nothing else
         # (kernels, guards, sampling, Python) took any time: its ceiling at these products.
-        mm = _matmul_ms(p, calls) if isinstance(p.model, ResumableSAC) else math.nan
+        mm = _matmul_ms(p, calls) if isinstance(p.model, ResumableSAC | TorchUpdate) else math.nan
         ceiling = statistics.median(sb3.wall) / mm
         print(f"  {p.name:<20}{ms:>9.2f}{speedup:>10.2f}{ms / floor:>12.2f}{usage:>10.2f}"
               f"{p.first_s:>14.2f}{mm:>11.2f}{ceiling:>12.2f}")  # fmt: skip
