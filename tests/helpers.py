@@ -80,12 +80,24 @@ def logged_tune_run(cfg: Any, gains_yaml: str) -> str:
     return str(run.info.run_id)
 
 
-def stage_runs(store: Any, stage: str, newest_first: bool = True) -> list[Any]:
-    """The runs of one stage in experiment 'armexp' of a store: a runs folder (SQLite) or a URI."""
+def existing_store_client(store: Any) -> Any:
+    """An `MlflowClient` of a store that exists: a runs folder (SQLite) or a URI. MlflowClient
+    creates a missing SQLite store in place, migrating its schema; a test polling a store that
+    an armexp process it started is about to create would race that process's own creation
+    (seen: "table guardrails already exists"). A missing one raises FileNotFoundError instead,
+    which polling loops wait out; armexp puts a new store in place whole (`new_store.make`)."""
     from mlflow.tracking import MlflowClient
 
     uri = store if isinstance(store, str) else f"sqlite:///{store}/mlflow.db"
-    client = MlflowClient(uri)
+    if uri.startswith("sqlite:///") and not Path(uri[len("sqlite:///") :]).is_file():
+        raise FileNotFoundError(f"no MLflow store at {uri} yet")
+    return MlflowClient(uri)
+
+
+def stage_runs(store: Any, stage: str, newest_first: bool = True) -> list[Any]:
+    """The runs of one stage in experiment 'armexp' of a store: a runs folder (SQLite) or a URI."""
+    client = existing_store_client(store)
+    uri = store if isinstance(store, str) else f"sqlite:///{store}/mlflow.db"
     exp = client.get_experiment_by_name("armexp")
     assert exp is not None, f"no experiment 'armexp' in {uri}"
     order = "DESC" if newest_first else "ASC"

@@ -18,7 +18,7 @@ from armexp.cli import main
 from armexp.tracking import liveness
 from armexp.tracking.stage_runs import close_orphans
 from armexp.tracking.tags import HEARTBEAT_TAG, PROCESS_TAG, STAGE_TAG
-from tests.helpers import SMALL_TRAIN
+from tests.helpers import SMALL_TRAIN, existing_store_client
 
 
 def _running_train(runs: Path) -> tuple[subprocess.Popen[str], Any]:
@@ -26,12 +26,16 @@ def _running_train(runs: Path) -> tuple[subprocess.Popen[str], Any]:
     command = [sys.executable, "-m", "armexp", "train", "controller.gains=paper", *SMALL_TRAIN,
                "agent.max_env_steps=100000", f"tracking.runs_dir={runs}"]  # fmt: skip
     proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    client = MlflowClient(f"sqlite:///{runs / 'mlflow.db'}")
     for _ in range(240):
-        exp = client.get_experiment_by_name("armexp") if (runs / "mlflow.db").exists() else None
-        found = (
-            client.search_runs([exp.experiment_id], "attributes.status = 'RUNNING'") if exp else []
-        )
+        found: list[Any] = []
+        if (runs / "mlflow.db").is_file():  # a client made earlier would create it, racing proc
+            client = existing_store_client(runs)
+            exp = client.get_experiment_by_name("armexp")
+            found = (
+                client.search_runs([exp.experiment_id], "attributes.status = 'RUNNING'")
+                if exp
+                else []
+            )
         if found:
             return proc, found[0]
         assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""

@@ -59,14 +59,22 @@ def test_the_template_is_made_once_and_copied_after(
 
 
 @pytest.mark.long
-def test_a_cache_that_cannot_be_written_leaves_the_store_to_mlflow(
+def test_a_cache_that_cannot_be_written_leaves_the_store_to_mlflow_made_beside_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """MLflow makes the store under another name and it is renamed into place whole: a client
+    that opens it meanwhile (a test polling a starting run) never migrates it a second time."""
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("")
     monkeypatch.setenv(new_store.CACHE_ENV, str(blocker / "cache"))
-    assert not new_store.make(tmp_path / "mlflow.db")
-    assert not (tmp_path / "mlflow.db").exists()
+    made = tmp_path / "made" / "mlflow.db"
+    made.parent.mkdir()
+    made.with_name("mlflow.db.new").write_text("left by a process that died")
+    assert new_store.make(made)
+    assert sorted(p.name for p in made.parent.iterdir()) == ["mlflow.db"]
+    reference = tmp_path / "reference" / "mlflow.db"
+    MlflowClient(f"sqlite:///{reference}").search_experiments(max_results=1)
+    assert _schema(made) == _schema(reference)
     runs = tmp_path / "runs"
     cfg = compose_config([f"tracking.runs_dir={runs}"])
     stage_runs.setup(cfg)

@@ -10,7 +10,7 @@ choose), and later stores start as a copy of it (a few milliseconds).
 A copy differs from a store MLflow makes in one place: the ``Default`` experiment's artifact
 location, which MLflow sets to ``./mlruns/0`` under the working folder of the process that made
 the store; `make` writes the one this process would have got (armexp does not use that
-experiment). A cache that cannot be written leaves MLflow to create the store as before.
+experiment). Where the cache cannot be written, MLflow creates each new store, beside it first.
 """
 
 from __future__ import annotations
@@ -46,18 +46,26 @@ def template_path() -> Path:
 
 
 def make(db: Path) -> bool:
-    """Create the SQLite store ``db`` (which does not exist) as a copy of the template, making
-    the template first if this MLflow version has none. False when the cache cannot be used:
-    then nothing was written at ``db`` and MLflow creates the store itself."""
+    """Create the SQLite store ``db`` (which does not exist) whole: a copy of the template (made
+    first if this MLflow version has none) or, where the cache cannot be used, a store MLflow
+    creates beside ``db``. Either appears at ``db`` by one rename, so a reader that opens it
+    never finds it half-migrated (and, by migrating it too, breaks it). False when neither
+    could be made: then nothing was written at ``db`` and MLflow creates the store itself."""
+    partial = db.with_name(db.name + ".new")
     try:
-        template = _template()
-        partial = db.with_name(db.name + ".new")
-        shutil.copyfile(template, partial)
-        _as_made_here(partial)
+        with contextlib.suppress(FileNotFoundError):
+            partial.unlink()  # left by a process that died making it
+        try:
+            template = _template()
+        except Exception:  # an unwritable cache
+            MlflowClient(f"sqlite:///{partial}").search_experiments(max_results=1)
+        else:
+            shutil.copyfile(template, partial)
+            _as_made_here(partial)
         partial.replace(db)
     except Exception:  # MLflow then creates the store itself and says what is wrong
         with contextlib.suppress(OSError):
-            db.with_name(db.name + ".new").unlink()
+            partial.unlink()
         return False
     return True
 
