@@ -177,7 +177,10 @@ def test_train_with_paper_gains_needs_no_tune_run(runs_dir: Path) -> None:
 
 @pytest.mark.long
 def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
-    runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    runs_dir: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     where = f"tracking.runs_dir={runs_dir}"
     interrupt_training_at(monkeypatch, 450)
@@ -192,6 +195,12 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     )
     assert state["num_timesteps"] == 450
     assert len(state["recent"]) == state["episodes"] > 0  # the rolling window is saved
+    assert state["replay_buffer"] is True  # kept with the interruption's checkpoint
+    kept = pd.read_pickle(
+        _download(runs_dir, run.info.run_id, "checkpoint/replay_buffer.pkl", tmp_path / "b")
+    )
+    # Every transition but those of the step it stopped in (2 environments), stored after it.
+    assert kept.n_envs * kept.pos == 448
     assert run.data.tags["armexp.error"] == "interrupted"
     monkeypatch.undo()  # training runs to its end again
     # Anything but the budget would be ignored by a resume: refused, nothing run.
@@ -200,8 +209,12 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
     # The run's own command typed again, with a larger budget: the same config, applied.
     again = ["controller.gains=paper", *SMALL_TRAIN, "train.checkpoint_every=100000"]
     resume = [f"train.resume={run.info.run_id}", "agent.max_env_steps=700", where]
+    capsys.readouterr()
     rc = main(["train", *again, *resume])
     assert rc == 0
+    assert f"resuming run {run.info.run_id} from step 450, with its replay buffer" in (
+        capsys.readouterr().out
+    )
     (resumed,) = _runs(runs_dir, "train")
     assert resumed.info.run_id == run.info.run_id and resumed.info.status == "FINISHED"
     assert resumed.data.tags["armexp.resumed_from_step"] == "450"
@@ -211,6 +224,8 @@ def test_interrupted_train_is_killed_with_a_checkpoint_and_resume_finishes_it(
         _download(runs_dir, run.info.run_id, "model/state.json", tmp_path / "f").read_text()
     )
     assert final["num_timesteps"] == 700
+    listed = [a.path for a in _client(runs_dir).list_artifacts(run.info.run_id, "checkpoint")]
+    assert listed == ["checkpoint/model.zip", "checkpoint/state.json"]  # the kept buffer deleted
     # The success rate over the last 100 episodes counts the episodes before the interruption.
     client = _client(runs_dir)
     successes = [m.value for m in client.get_metric_history(run.info.run_id, "episode/success")]

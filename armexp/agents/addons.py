@@ -39,7 +39,8 @@ class TrainingContext:
     model: BaseAlgorithm
     settings: ReachSettings
     seed: int
-    #: True when the run continues from a checkpoint (its replay buffer starts empty).
+    #: True when the run continues from a checkpoint (its replay buffer is the interrupted
+    #: run's, `armexp.agents.kept_buffer`, or empty after a process killed outright).
     resumed: bool
     #: The share of the training budget spent so far (0 to 1).
     budget_used: Callable[[], float]

@@ -16,6 +16,7 @@ from mlflow.tracking import MlflowClient
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import KVWriter
 
+from armexp.agents import kept_buffer
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.console import progress_bar
 from armexp.tracking.artifacts import log_batch, log_folder
@@ -123,8 +124,9 @@ class EpisodeStats(BaseCallback):
 
 class Checkpoint(BaseCallback):
     """Every ``every`` environment steps: the model (policy, critics, optimisers, entropy
-    coefficient and step count; no replay buffer) and a small state file, logged over the
-    previous checkpoint's artifacts so that an interrupted run can be resumed."""
+    coefficient and step count; no replay buffer, which an interruption's `save` adds) and a
+    small state file, logged over the previous checkpoint's artifacts so that an interrupted
+    run can be resumed."""
 
     def __init__(self, every: int, state: Callable[[], dict[str, Any]]):
         super().__init__()
@@ -137,18 +139,23 @@ class Checkpoint(BaseCallback):
             self.save()
         return True
 
-    def save(self, folder: str = CHECKPOINT_DIR) -> None:
+    def save(self, folder: str = CHECKPOINT_DIR, with_buffer: bool = False) -> None:
+        """``with_buffer``: the replay buffer too (`armexp.agents.kept_buffer`), as on an
+        interruption."""
         self._last = self.num_timesteps
-        log_model(self.model, folder, self.state())
+        log_model(self.model, folder, self.state(), with_buffer)
 
 
-def log_model(model: Any, folder: str, state: dict[str, Any]) -> None:
-    """The model and its state file as the artifacts ``folder/`` (`MODEL_FILE`, `STATE_FILE`),
-    each written under a temporary name and renamed when complete (`log_folder`): the model
-    first, so a write that fails leaves the previous pair (or none) rather than a new state
-    beside an old model or a cut-off model."""
+def log_model(model: Any, folder: str, state: dict[str, Any], with_buffer: bool = False) -> None:
+    """The model and its state file as the artifacts ``folder/`` (`MODEL_FILE`, `STATE_FILE`;
+    with ``with_buffer`` the replay buffer, `kept_buffer.BUFFER_FILE`, and the state says so),
+    each written under a temporary name and renamed when complete (`log_folder`), in sorted
+    order: the state last, so a write that fails leaves the previous state, which does not
+    claim a buffer it was not written with."""
     with tempfile.TemporaryDirectory() as tmp:
         model.save(str(Path(tmp) / MODEL_FILE))
+        if with_buffer and kept_buffer.save(model, Path(tmp)):
+            state = {**state, kept_buffer.STATE_KEY: True}
         (Path(tmp) / STATE_FILE).write_text(json.dumps(state, indent=1))
         log_folder(tmp, folder)
 

@@ -147,8 +147,8 @@ def planned(ctx: TrainingContext) -> list[Demonstration]:
 
 class PlannerDemonstrations(TrainingAddOn):
     """``episodes`` planner episodes in the replay buffer before training (module doc); a
-    resumed run's buffer starts empty and gets none. Privileged: the planner knows the
-    obstacles. Off-policy algorithms only: PPO has no replay buffer."""
+    resumed run gets none (its buffer is the interrupted run's, or empty). Privileged: the
+    planner knows the obstacles. Off-policy algorithms only: PPO has no replay buffer."""
 
     declaration = aids.DEMONSTRATIONS
 

@@ -29,7 +29,7 @@ class DemonstrationPretraining(TrainingAddOn):
     """``gradient_steps`` updates on the demonstrations before training (module doc), in calls
     of the preset's own ``gradient_steps`` so that a compiled update reuses the graph training
     uses. Listed after the demonstrations (and after the cloning term, for the actor to clone
-    while it pre-trains). A resumed run does not pre-train again: its buffer starts empty."""
+    while it pre-trains). A resumed run does not pre-train again."""
 
     declaration = aids.PRETRAINING
     needs = (PlannerDemonstrations,)

@@ -73,6 +73,17 @@ class RelabellingReplayBuffer(ReplayBuffer):
             self.last[rows, e] = pos
             self._start[e] = self.pos
 
+    def end_episodes(self) -> None:
+        """Each environment's running episode ends with its last stored transition (an
+        interrupted run's buffer, kept for the resumed run, which starts new episodes)."""
+        newest = (self.pos - 1) % self.buffer_size
+        for e in range(self.n_envs):
+            if self._start[e] == self.pos:
+                continue  # its last episode ended with the last transition
+            length = (newest - self._start[e]) % self.buffer_size + 1
+            self.last[(self._start[e] + np.arange(length)) % self.buffer_size, e] = newest
+            self._start[e] = self.pos
+
     def _future(self, rows: np.ndarray, envs: np.ndarray) -> np.ndarray:
         """A position of the same episode at or after each (row, env), uniformly."""
         newest = (self.pos - 1) % self.buffer_size
@@ -146,6 +157,8 @@ class GoalRelabelling(TrainingAddOn):
                 "its reward for another, as armexp/Reach-v0 does); remove it (~agent.aids.her)."
             )
         old = model.replay_buffer
+        if ctx.resumed and isinstance(old, RelabellingReplayBuffer):
+            return []  # the interrupted run's buffer, kept (`armexp.agents.kept_buffer`)
         if type(old) is not ReplayBuffer or old.optimize_memory_usage or old.size():
             raise ConfigError(
                 f"{KEY} is not allowed here: it needs SB3's plain replay buffer, empty "

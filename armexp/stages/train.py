@@ -14,7 +14,8 @@ cloning, the DAgger expert, weight averaging) are built from their ``_target_`` 
 order, then the callbacks of ``train.callbacks`` (by default the held-out checks, which with
 ``train.eval_every`` > 0 run the policy on held-out targets while training: ``eval/*``).
 Artifacts: ``gains.yaml`` (the controller in the loop), ``checkpoint/`` (model without replay
-buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps and on interruption)
+buffer + ``state.json``, overwritten every ``train.checkpoint_every`` steps; on interruption
+with the replay buffer, `armexp.agents.kept_buffer`)
 and ``model/`` (the final model). ``armexp train train.resume=<run id>`` reopens a KILLED or
 FAILED run and continues from its checkpoint with the run's own config.
 """
@@ -25,6 +26,7 @@ import json
 import logging
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import mlflow
@@ -33,8 +35,10 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from armexp import console, disk
+from armexp.agents import kept_buffer
 from armexp.agents.addons import TrainingAddOn, TrainingContext, build_addons
 from armexp.agents.callbacks import (
     CHECKPOINT_DIR,
@@ -160,6 +164,10 @@ def resume(composed: DictConfig, check_overrides: bool = True) -> stage_runs.Sta
         ) from None
     state = json.loads(state_path.read_text())
     model_path = artifacts.download_artifact(run_id, f"{CHECKPOINT_DIR}/{MODEL_FILE}", cfg)
+    buffer_path = None
+    if state.get(kept_buffer.STATE_KEY):
+        buffer_path = str(artifacts.download_artifact(
+            run_id, f"{CHECKPOINT_DIR}/{kept_buffer.BUFFER_FILE}", cfg))  # fmt: skip
     original = OmegaConf.load(artifacts.download_artifact(run_id, "config.yaml", cfg))
     assert isinstance(original, DictConfig)
     original.tracking = composed.tracking
@@ -167,7 +175,8 @@ def resume(composed: DictConfig, check_overrides: bool = True) -> stage_runs.Sta
     if check_overrides:
         _apply_resume_overrides(original, cfg, run_id)
     gains = yaml.safe_load(artifacts.download_artifact(run_id, "gains.yaml", cfg).read_text())
-    print(f"train: resuming run {run_id} from step {state['num_timesteps']}")
+    how = "with its replay buffer" if buffer_path else "its replay buffer refilled by the policy"
+    print(f"train: resuming run {run_id} from step {state['num_timesteps']}, {how}")
     with stage_runs.stage_run(
         original,
         "train",
@@ -178,7 +187,10 @@ def resume(composed: DictConfig, check_overrides: bool = True) -> stage_runs.Sta
         # The interruption that stopped it is over: the run ends with its own new status.
         run_end.clear_error(mlflow.MlflowClient(), run_id)
         origin = _gains_from(found.data.tags)
-        summary = _learn(READS.view(original), gains, run_id, str(model_path), state, origin)
+        summary = _learn(
+            READS.view(original), gains, run_id, str(model_path), state, origin,
+            buffer_path=buffer_path,
+        )  # fmt: skip
         return stage_runs.StageResult(run_id, summary)
 
 
@@ -272,6 +284,7 @@ def _learn(
     state: dict[str, Any],
     gains_from: str,
     extra: Sequence[TrainingAddOn] = (),
+    buffer_path: str | None = None,
 ) -> dict[str, float]:
     agent, tr = cfg.agent, cfg.train
     algo = str(agent.algo)
@@ -288,8 +301,10 @@ def _learn(
         model = build_agent(agent, venv, int(cfg.seed))
     else:
         model = load_agent(model_path, venv, agent)
-        # Refill an empty replay buffer with the policy before updates resume.
-        mark_resumed(model, int(agent.learning_starts))
+        if buffer_path is not None and isinstance(model, OffPolicyAlgorithm):
+            kept_buffer.restore(model, Path(buffer_path))
+        else:  # refill an empty replay buffer with the policy before updates resume
+            mark_resumed(model, int(agent.learning_starts))
     model.set_logger(Logger(folder=None, output_formats=[MLflowOutputFormat(run_id)]))
     done_steps = int(state.get("num_timesteps", 0))
     total = step_budget(cfg)
@@ -339,13 +354,15 @@ def _learn(
         if not disk.is_full(exc) and not remote.is_lost(exc):
             with run_end.while_stopping(exc):
                 stats.flush()
-                checkpoint.save()
+                checkpoint.save(with_buffer=True)
         raise
     finally:
         venv.close()
     elapsed = time.perf_counter() - started
     stats.flush()
     checkpoint.save()
+    if model_path is not None:  # a buffer kept for this resume is stale now
+        kept_buffer.discard(run_id, f"{CHECKPOINT_DIR}/{kept_buffer.BUFFER_FILE}")
     kept: dict[str, float] = {}
     for addon in addons:
         kept.update(addon.finish(context))
