@@ -5,9 +5,8 @@ buffer (up to a few hundred MB, written once per interruption rather than every 
 When training is interrupted (Ctrl-C, SIGTERM, an error) the checkpoint written then holds the
 buffer too, and ``train.resume`` continues on it. Without it (a process killed outright, or a
 run interrupted before this was kept) the resumed model refills an empty buffer with its own
-policy for ``learning_starts`` steps (`armexp.agents.factory.mark_resumed`); measured on CrossQ
-at 570 k and 320 k steps, that cost the held-out checks about half their value for the next
-100 k steps (docs/plain_agent.md).
+policy for ``learning_starts`` steps (`armexp.agents.factory.mark_resumed`), which costs a
+trained policy much of its skill for a while (docs/plain_agent.md measures it).
 
 The interrupted episodes end with the last stored transition of each environment (the resumed
 run starts new ones): they are marked truncated, so an n-step return does not run on into the
@@ -45,13 +44,18 @@ def end_open_episodes(buffer: Any) -> None:
 
 def save(model: Any, folder: Path) -> bool:
     """Write ``model``'s replay buffer to ``folder/BUFFER_FILE`` with its open episodes ended;
-    False for a model without one (PPO) or with an empty one."""
+    False for a model without one (PPO) or with an empty one, and where it cannot be written
+    (a full disk): the checkpoint then keeps the model, as without the buffer."""
     if not isinstance(model, OffPolicyAlgorithm) or model.replay_buffer is None:
         return False
     if model.replay_buffer.size() == 0:
         return False
     end_open_episodes(model.replay_buffer)
-    model.save_replay_buffer(folder / BUFFER_FILE)
+    try:
+        model.save_replay_buffer(folder / BUFFER_FILE)
+    except OSError:
+        (folder / BUFFER_FILE).unlink(missing_ok=True)
+        return False
     return True
 
 
