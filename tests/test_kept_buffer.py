@@ -5,6 +5,7 @@ resumed run's first episode)."""
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +73,20 @@ def test_a_model_without_transitions_keeps_no_buffer(tmp_path: Path) -> None:
     model, _ = _trained(0)
     assert not kept_buffer.save(model, tmp_path)
     assert not (tmp_path / kept_buffer.BUFFER_FILE).exists()
+
+
+def test_a_buffer_that_cannot_be_written_leaves_no_cut_off_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    model, _ = _trained(60)
+
+    def full_disk(path: Path) -> None:
+        Path(path).write_bytes(b"cut off")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(model, "save_replay_buffer", full_disk)
+    assert not kept_buffer.save(model, tmp_path)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_relabelling_buffer_closes_its_open_episodes() -> None:
