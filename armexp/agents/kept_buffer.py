@@ -5,8 +5,8 @@ buffer (up to a few hundred MB, written once per interruption rather than every 
 When training is interrupted (Ctrl-C, SIGTERM, an error) the checkpoint written then holds the
 buffer too, and ``train.resume`` continues on it. Without it (a process killed outright, or a
 run interrupted before this was kept) the resumed model refills an empty buffer with its own
-policy for ``learning_starts`` steps (`armexp.agents.factory.mark_resumed`), which costs a
-trained policy much of its skill for a while (docs/plain_agent.md measures it).
+policy for ``learning_starts`` steps (`armexp.agents.factory.mark_resumed`) and learns for a
+while on little but that (docs/plain_agent.md measures what it costs).
 
 The interrupted episodes end with the last stored transition of each environment (the resumed
 run starts new ones): they are marked truncated, so an n-step return does not run on into the
