@@ -51,6 +51,10 @@ def test_a_kept_n_step_buffer_comes_back_whole_and_its_open_episode_ends_where_i
     kept_buffer.restore(loaded, tmp_path / kept_buffer.BUFFER_FILE)
     kept = loaded.replay_buffer
     assert type(kept) is type(buffer) and kept.pos == buffer.pos == 130
+    # Only the 130 filled rows of 20,000 were written, and both buffers are whole again.
+    assert (tmp_path / kept_buffer.BUFFER_FILE).stat().st_size < 100_000
+    assert kept.observations.shape == buffer.observations.shape == (20_000, 1, *buffer.obs_shape)
+    assert not hasattr(buffer, kept_buffer.CUT_KEY) and not hasattr(kept, kept_buffer.CUT_KEY)
     assert np.array_equal(kept.observations[:130], buffer.observations[:130])
     assert np.array_equal(kept.rewards[:130], buffer.rewards[:130])
     assert kept.timeouts[newest, 0] == 1  # the cut episode ends there, and nothing else changed
@@ -67,6 +71,19 @@ def test_a_kept_n_step_buffer_comes_back_whole_and_its_open_episode_ends_where_i
     assert sample.rewards.item() == pytest.approx(want, rel=1e-5)
     assert sample.discounts.item() == pytest.approx(gamma**3, rel=1e-5)
     assert np.allclose(sample.next_observations.numpy(), kept.next_observations[newest])
+
+
+def test_a_full_buffer_is_kept_whole(tmp_path: Path) -> None:
+    model, agent = _trained(130, "agent.buffer_size=100")
+    buffer = model.replay_buffer
+    assert buffer.full and kept_buffer.save(model, tmp_path)
+    model.save(tmp_path / "model.zip")
+    loaded: Any = load_agent(str(tmp_path / "model.zip"), model.get_env(), agent)
+    kept_buffer.restore(loaded, tmp_path / kept_buffer.BUFFER_FILE)
+    kept = loaded.replay_buffer
+    assert kept.full and kept.pos == buffer.pos == 30
+    assert np.array_equal(kept.observations, buffer.observations)
+    assert np.array_equal(kept.timeouts, buffer.timeouts)
 
 
 def test_a_model_without_transitions_keeps_no_buffer(tmp_path: Path) -> None:
