@@ -97,9 +97,8 @@ def existing_store_client(store: Any) -> Any:
 def stage_runs(store: Any, stage: str, newest_first: bool = True) -> list[Any]:
     """The runs of one stage in experiment 'armexp' of a store: a runs folder (SQLite) or a URI."""
     client = existing_store_client(store)
-    uri = store if isinstance(store, str) else f"sqlite:///{store}/mlflow.db"
     exp = client.get_experiment_by_name("armexp")
-    assert exp is not None, f"no experiment 'armexp' in {uri}"
+    assert exp is not None, f"no experiment 'armexp' in {client.tracking_uri}"
     order = "DESC" if newest_first else "ASC"
     return client.search_runs(
         [exp.experiment_id],

@@ -3,6 +3,7 @@ whose process died is closed (FAILED, said on stderr) by the next command on the
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -28,7 +29,7 @@ def _running_train(runs: Path) -> tuple[subprocess.Popen[str], Any]:
     proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     for _ in range(240):
         found: list[Any] = []
-        if (runs / "mlflow.db").is_file():  # a client made earlier would create it, racing proc
+        with contextlib.suppress(FileNotFoundError):  # proc has not made the store yet
             client = existing_store_client(runs)
             exp = client.get_experiment_by_name("armexp")
             found = (
