@@ -22,7 +22,8 @@ from armexp.report.tables import changes, table_two
 from tests.helpers import stage_runs
 
 PRESETS = sorted(p.stem for p in (config_dir() / "agent").glob("*.yaml"))
-NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red", "sac_plain_red_n10"]
+NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red", "sac_plain_red_n10",
+                  "crossq_plain_red_n10"]  # fmt: skip
 #: Small enough for seconds: tiny networks and batches, 100-step episodes, 300 steps. The
 #: eager update, because compiling the update takes a minute (tests/test_compiled_update.py
 #: covers it).
@@ -72,10 +73,14 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
             assert declaration is not None and not declaration.privileged, preset
             with_aids.add(preset)
     # sac_plain_red is sac_plain plus red exploration noise, sac_plain_red_n10 that with 10-step
-    # returns; the others carry no aid.
-    assert with_aids == {"sac_plain_red", "sac_plain_red_n10"}
+    # returns, crossq_plain_red_n10 that with CrossQ's own (eager) update; the others carry no aid.
+    assert with_aids == {"sac_plain_red", "sac_plain_red_n10", "crossq_plain_red_n10"}
     plain = compose_config(["agent=sac_plain"]).agent
-    for preset, changed in (("sac_plain_red", set()), ("sac_plain_red_n10", {"n_steps"})):
+    for preset, changed in (
+        ("sac_plain_red", set()),
+        ("sac_plain_red_n10", {"n_steps"}),
+        ("crossq_plain_red_n10", {"n_steps", "algo", "gradients"}),
+    ):
         red = compose_config([f"agent={preset}"]).agent
         assert list(red.aids) == ["coloured_noise"] and red.aids.coloured_noise.beta == 2.0
         differs = {k for k in plain if k not in ("name", "aids") and red[k] != plain[k]}
