@@ -80,6 +80,11 @@ def test_gains_preset_override_and_experiment_preset(compose: Callable[..., Dict
     assert demo.name == "sac_demo" and demo.max_env_steps == 240_000
     assert demo.critic_arch == [64, 64] and quick.critic_arch is None
     assert demo.aids == quick.aids and demo.net_arch == quick.net_arch == [128, 128]
+    # The demo in 100 k steps: the same agent at two gradient steps per environment step.
+    fast = compose("experiment=demo", "agent=sac_demo_100k").agent
+    assert fast.max_env_steps == 100_000 and fast.gradient_steps == 16 and fast.n_envs == 8
+    differs = {k for k in demo if k != "name" and fast[k] != demo[k]}
+    assert differs == {"gradient_steps", "max_env_steps"}
 
 
 @pytest.mark.parametrize(
