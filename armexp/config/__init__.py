@@ -284,7 +284,7 @@ def _agent_checks(cfg: DictConfig) -> None:
         )
     if algo == "ppo":
         _rollout_fits(agent)
-    targets = {}
+    targets: dict[str, str] = {}
     for name, spec in (agent.get("aids") or {}).items():
         target = spec.get("_target_") if isinstance(spec, DictConfig) else None
         if not isinstance(target, str) or "." not in target:
