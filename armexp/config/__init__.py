@@ -284,7 +284,10 @@ def _agent_checks(cfg: DictConfig) -> None:
         )
     if algo == "ppo":
         _rollout_fits(agent)
-    targets: dict[str, str] = {}
+    # A privileged aid in a non-privileged preset is refused as such, whichever algorithm it
+    # would also not apply to (`_non_privileged` passes over targets that are not class names).
+    if agent.get("privileged") is False:
+        _non_privileged(cfg)
     for name, spec in (agent.get("aids") or {}).items():
         target = spec.get("_target_") if isinstance(spec, DictConfig) else None
         if not isinstance(target, str) or "." not in target:
@@ -293,13 +296,7 @@ def _agent_checks(cfg: DictConfig) -> None:
                     spec, DictConfig) else spec,
                 "each aid is a config with a _target_ naming its class (armexp.agents.addons)",
             )  # fmt: skip
-        targets[f"agent.aids.{name}"] = target
-    # A privileged aid in a non-privileged preset is refused as such, whichever algorithm it
-    # would also not apply to.
-    if agent.get("privileged") is False:
-        _non_privileged(cfg)
-    for key, target in targets.items():
-        _check_aid_target(key, target, agent)
+        _check_aid_target(f"agent.aids.{name}", target, agent)
 
 
 def _non_privileged(cfg: DictConfig) -> None:
