@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 
 from armexp.cli import main
+from armexp.config import compose_config
+from armexp.stages.pipeline import tune_steps
 from tests.helpers import interrupt_training_at, stage_runs
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -20,6 +22,8 @@ TUNE = ["tuner.n_iterations=2", "tuner.n_nests=4", "tuner.objective.n_scenarios=
         "tuner.objective.horizon=0.2"]  # fmt: skip
 TRAIN = ["agent.max_env_steps=300", "agent.learning_starts=100", "agent.net_arch=[32,32]",
          "env.max_steps=100", "train.progress=false"]  # fmt: skip
+#: A plain row of `experiment=reproduce` at the tiny budget (its own update, eager: no compile).
+PLAIN_ROW = "{max_env_steps:300,learning_starts:100,net_arch:[32,32],gradients:autograd}"
 #: Appended to each stage's examples: the smallest budgets that still run every part.
 TINY = {
     "simulate": ["scenario.duration=0.1"],
@@ -70,7 +74,10 @@ def test_every_sweep_example_runs_as_written(tmp_path: Path) -> None:
     """The Sweeps section's block: basic, joblib and parallel launchers, tiny budgets."""
     where = [f"tracking.runs_dir={tmp_path / 'runs'}"]
     assert main(["train", "controller.gains=paper", "agent=sac_smoke", *TRAIN, *where]) == 0
-    assert main(["tune", "controller=pid", *TUNE, *where]) == 0  # eval's PID gains
+    # Every tune run a default eval reads: each baseline's and the adaptive references'.
+    for controller, criterion in tune_steps(compose_config([])).values():
+        tune = ["tune", f"controller={controller}", f"tuner.objective.criterion={criterion}"]
+        assert main([*tune, *TUNE, *where]) == 0
     commands = examples(after="## Sweeps")
     assert len(commands) >= 4
     for line in commands:
@@ -110,6 +117,10 @@ def test_every_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.Monke
             extra.append("agent.aids.demonstrations.episodes=20")  # sac_quick plans 1000
         if stage == "report":
             extra.append(f"report.out_dir={tmp_path / 'report'}")
+        if "reproduce" in line:  # its agents' rows train 1 M steps at the study's seeds
+            extra.append(
+                f"pipeline.agents=[{{preset:sac_plain_red_n10,seeds:[0],agent:{PLAIN_ROW}}}]"
+            )
         _shell(" ".join([line, *(f"'{o}'" for o in extra)]), tmp_path)
 
 
