@@ -22,8 +22,11 @@ TUNE = ["tuner.n_iterations=2", "tuner.n_nests=4", "tuner.objective.n_scenarios=
         "tuner.objective.horizon=0.2"]  # fmt: skip
 TRAIN = ["agent.max_env_steps=300", "agent.learning_starts=100", "agent.net_arch=[32,32]",
          "env.max_steps=100", "train.progress=false"]  # fmt: skip
-#: A plain row of `experiment=reproduce` at the tiny budget (its own update, eager: no compile).
-PLAIN_ROW = "{max_env_steps:300,learning_starts:100,net_arch:[32,32],gradients:autograd}"
+#: A plain row of `experiment=reproduce` at TRAIN's agent budget (its update eager: no compile).
+_ROW_BUDGET = [
+    o.removeprefix("agent.").replace("=", ":", 1) for o in TRAIN if o.startswith("agent.")
+]
+PLAIN_ROW = "{" + ",".join([*_ROW_BUDGET, "gradients:autograd"]) + "}"
 #: Appended to each stage's examples: the smallest budgets that still run every part.
 TINY = {
     "simulate": ["scenario.duration=0.1"],
