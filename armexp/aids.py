@@ -129,9 +129,18 @@ COLOURED_NOISE = AidDeclaration(
     frozenset({"sac", "tqc", "crossq"}),  # a squashed-Gaussian actor whose samples it colours
 )  # fmt: skip
 
+SELF_IMITATION = AidDeclaration(
+    "self_imitation", "armexp.agents.self_imitation.SelfImitation", False, "self-imitation",
+    lambda a: (
+        f"self-imitation of the agent's own reaching episodes where their return beat the critic "
+        f"(weight {number_arg(a, 'weight'):g}, last {int(number_arg(a, 'capacity'))} steps)"
+    ),
+    frozenset({"sac"}),  # a term of SAC's own actor update (armexp.agents.sac)
+)  # fmt: skip
+
 #: Every aid, in the order the presets list them.
 AIDS = (DEMONSTRATIONS, CLONING, PRETRAINING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS,
-        RANDOM_STARTS, HER, COLOURED_NOISE)  # fmt: skip
+        RANDOM_STARTS, HER, COLOURED_NOISE, SELF_IMITATION)  # fmt: skip
 
 
 def declared(target: str) -> AidDeclaration | None:

@@ -49,10 +49,10 @@ def _filled(env: ReachEnv) -> ResumableSAC:
 
 def _term_loss(model: ResumableSAC, term: DemonstrationCloning) -> torch.Tensor:
     """The term's loss on its next batch, from actor and critic passes of their own."""
-    obs, actions = term.batch()
+    obs, actions, returns = term.batch()
     with torch.no_grad():
         q = torch.cat(model.critic(obs, actions), dim=1).min(dim=1).values
-    return term.loss(model.actor(obs, deterministic=True), actions, q)
+    return term.loss(model.actor(obs, deterministic=True), actions, q, returns)
 
 
 @pytest.mark.long

@@ -22,6 +22,7 @@ from armexp.agents.cloning import DemonstrationCloning
 from armexp.agents.compiled import CompiledUpdate, steps_per_graph
 from armexp.agents.demonstrations import Demonstration, demonstrations
 from armexp.agents.sac import ResumableSAC, _with_gradients, build_sac, load_sac
+from armexp.agents.self_imitation import OwnReaches
 from armexp.agents.vec import make_vec_env
 from armexp.config import ConfigError, compose_config
 from armexp.envs.factory import settings_from_config
@@ -29,13 +30,24 @@ from armexp.envs.reach import ReachEnv
 
 TINY = ["controller.gains=paper", "agent=sac_smoke", "agent.learning_starts=300",
         "agent.net_arch=[32,32]", "agent.batch_size=64"]  # fmt: skip
-#: learned entropy, n-step returns, the cloning term, four steps per call (the graph of two, run
-#: twice); fixed entropy, 1-step.
+#: learned entropy, n-step returns, the cloning or the self-imitation term, four steps per call
+#: (the graph of two, run twice); fixed entropy, 1-step.
 #: ``eager``: the same function run without compiling it (seconds, in the default set).
 CASES = {
-    "learned-nstep-cloning": (["agent.ent_coef=auto", "agent.n_steps=3"], True, 4, None),
-    "learned-nstep-cloning-eager": (["agent.ent_coef=auto", "agent.n_steps=3"], True, 4, "eager"),
-    "fixed-onestep": (["agent.ent_coef=0.1", "agent.n_steps=1"], False, 1, None),
+    "learned-nstep-cloning": (["agent.ent_coef=auto", "agent.n_steps=3"], "cloning", 4, None),
+    "learned-nstep-cloning-eager": (
+        ["agent.ent_coef=auto", "agent.n_steps=3"],
+        "cloning",
+        4,
+        "eager",
+    ),
+    "learned-nstep-self-imitation-eager": (
+        ["agent.ent_coef=auto", "agent.n_steps=3"],
+        "self_imitation",
+        4,
+        "eager",
+    ),
+    "fixed-onestep": (["agent.ent_coef=0.1", "agent.n_steps=1"], None, 1, None),
 }
 CALLS = 3
 RTOL, ATOL = 1e-4, 1e-6
@@ -46,7 +58,7 @@ class Run:
     models: dict[str, ResumableSAC]  # by agent.gradients, both trained alike
     before: list[torch.Tensor]
     logged: dict[str, list[dict[str, float]]]
-    terms: dict[str, DemonstrationCloning]
+    terms: dict[str, DemonstrationCloning | OwnReaches]
     overrides: list[str]
     steps: int
 
@@ -83,6 +95,17 @@ def demos() -> list[Demonstration]:
     return demonstrations(ReachEnv(settings), 4, seed=1)
 
 
+def _own_reaches(model: ResumableSAC, demos: list[Demonstration]) -> OwnReaches:
+    """A self-imitation term holding the demonstrations' steps with returns around the untrained
+    critics' values (about 0), so that some beat them and some do not."""
+    term = OwnReaches(model, 2.0, capacity=10_000, seed=7)
+    obs = np.concatenate([d.obs for d in demos])
+    actions = np.concatenate([d.actions for d in demos])
+    term.add(obs, actions, np.random.default_rng(0).normal(0.0, 0.5, len(actions)))
+    term.attach()
+    return term
+
+
 class Runs(dict[str, Run]):
     """Each case trained `CALLS` calls along both paths from the same weights and batches, on
     first use: a case compiles its own graphs, so the slow-marked case costs nothing by default."""
@@ -92,14 +115,16 @@ class Runs(dict[str, Run]):
         self.demos = demos
 
     def __missing__(self, case: str) -> Run:
-        overrides, cloning, steps, mode = CASES[case]
+        overrides, term, steps, mode = CASES[case]
         models = {g: _filled(g, overrides) for g in ("autograd", "compiled")}
         before = [p.detach().clone() for p in _params(models["autograd"])]
         start = zip(before, _params(models["compiled"]), strict=True)
         assert all(torch.equal(a, b) for a, b in start)
-        terms = {}
-        if cloning:
+        terms: dict[str, DemonstrationCloning | OwnReaches] = {}
+        if term == "cloning":
             terms = {g: DemonstrationCloning(m, self.demos, 3.0, seed=7) for g, m in models.items()}
+        if term == "self_imitation":
+            terms = {g: _own_reaches(m, self.demos) for g, m in models.items()}
         logged: dict[str, list[dict[str, float]]] = {g: [] for g in models}
         for call in range(CALLS):
             for gradients, model in models.items():
@@ -122,6 +147,7 @@ def runs(demos: list[Demonstration]) -> Runs:
     "case",
     [
         "learned-nstep-cloning-eager",
+        "learned-nstep-self-imitation-eager",
         *(
             pytest.param(c, marks=pytest.mark.slow)
             for c in ["learned-nstep-cloning", "fixed-onestep"]

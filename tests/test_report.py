@@ -517,6 +517,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
                 aids.RANDOM_STARTS,
                 aids.HER,
                 aids.COLOURED_NOISE,
+                aids.SELF_IMITATION,
             )
         }, preset
     for declaration in aids.AIDS:
@@ -527,7 +528,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
     assert {a.name: a.privileged for a in aids.AIDS} == {
         "demonstrations": True, "cloning": True, "pretraining": True, "expert": True,
         "averaging": False, "curriculum": False, "missed_targets": False, "random_starts": False,
-        "her": False, "coloured_noise": False,
+        "her": False, "coloured_noise": False, "self_imitation": False,
     }  # fmt: skip
     assert aids.declared("armexp.agents.expert.ExpertLabels") is None
     assert aids.privileged_modules() == (

@@ -30,6 +30,7 @@ from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 from armexp.agents.sac import ResumableSAC
+from armexp.agents.terms import TermBatch
 
 
 class DemonstrationCloning:
@@ -90,14 +91,18 @@ class DemonstrationCloning:
         )
         self._added += len(actions)
 
-    def batch(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """A batch of ``model.batch_size`` demonstrated or added states and their actions."""
+    def batch(self) -> TermBatch:
+        """A batch of ``model.batch_size`` demonstrated or added states and their actions (no
+        returns: the term clones every one)."""
         index = torch.randint(
             len(self), (self.model.batch_size,), generator=self.generator, device=self.obs.device
         )
-        return self.obs[index], self.actions[index]
+        return self.obs[index], self.actions[index], None
 
-    def value(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def value(
+        self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor,
+        returns: torch.Tensor | None = None,
+    ) -> torch.Tensor:  # fmt: skip
         """The weighted cloning loss of the actor's deterministic actions ``mode`` at a `batch`
         whose actions are ``actions`` and whose critic value is ``q`` (no gradient); no side
         effects, so that a compiled update can trace it."""
@@ -109,9 +114,12 @@ class DemonstrationCloning:
         self.last_loss = float(loss)
         self.model.logger.record_mean("train/bc_loss", self.last_loss)
 
-    def loss(self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def loss(
+        self, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor,
+        returns: torch.Tensor | None = None,
+    ) -> torch.Tensor:  # fmt: skip
         """`value`, recorded."""
-        loss = self.value(mode, actions, q)
+        loss = self.value(mode, actions, q, returns)
         self.record(float(loss.detach()))
         return loss
 

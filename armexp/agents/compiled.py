@@ -39,7 +39,7 @@ from stable_baselines3.sac.policies import Actor
 from torch import nn
 from torch.func import functional_call, grad_and_value
 
-from armexp.agents.terms import ActorTerm
+from armexp.agents.terms import ActorTerm, TermBatch
 
 
 class SACModel(Protocol):
@@ -81,7 +81,6 @@ class SACModel(Protocol):
 
 
 Tensors = list[torch.Tensor]
-Pair = tuple[torch.Tensor, torch.Tensor]  # an actor term's states and actions
 EPSILON = 1e-6  # SB3's guard in log(1 − tanh² + ε)
 LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 #: torch.compile's mode: the default. ``max-autotune-no-cudagraphs`` was no faster here and its
@@ -206,22 +205,22 @@ class CompiledUpdate:
 
     def _actor_loss(self, params: Tensors, critic: Tensors, obs: torch.Tensor,
                     noise: torch.Tensor, alpha: torch.Tensor,
-                    terms: list[Pair]) -> tuple[torch.Tensor, Any]:  # fmt: skip
+                    terms: list[TermBatch]) -> tuple[torch.Tensor, Any]:  # fmt: skip
         action, log_prob = self._sample(params, obs, noise)
         min_q = self._q(critic, obs, action).min(dim=1, keepdim=True).values
         actor_loss = (alpha * log_prob - min_q).mean()
         values = []
-        for term, (states, actions) in zip(self.model.actor_terms, terms, strict=True):
+        for term, (states, actions, returns) in zip(self.model.actor_terms, terms, strict=True):
             with torch.no_grad():
                 q = self._q(critic, states, actions).min(dim=1).values
             named = dict(zip(self.actor_names, params, strict=True))
             mean, _ = functional_call(self.policy, named, (states,))
-            values.append(term.value(torch.tanh(mean), actions, q))
+            values.append(term.value(torch.tanh(mean), actions, q, returns))
         return actor_loss + sum(values), (actor_loss, log_prob, values)
 
     def steps(self, actor: Tensors, critic: Tensors, target: Tensors, log_alpha: Tensors,
               state: list[list[Tensors]], lr: torch.Tensor, batches: list[Tensors],
-              noises: Tensors, terms: list[list[Pair]],
+              noises: Tensors, terms: list[list[TermBatch]],
               ) -> tuple[torch.Tensor, Tensors]:  # fmt: skip
         """Every gradient step of a call: for each, (ent_coef, its loss, critic loss, actor
         loss, actor terms' losses); the last step's gradients if `keep_grads`."""

@@ -129,10 +129,10 @@ class ResumableSAC(ResumeRefill, SAC):
                 actor.optimizer.zero_grad()
                 actor_loss.backward()
                 for term in self.actor_terms:  # their gradients add to SAC's
-                    states, actions = term.batch()
+                    states, actions, returns = term.batch()
                     with torch.no_grad():
                         q = torch.cat(critic(states, actions), dim=1).min(dim=1).values
-                    term.loss(actor(states, deterministic=True), actions, q).backward()
+                    term.loss(actor(states, deterministic=True), actions, q, returns).backward()
             finally:
                 for param in critic_params:
                     param.requires_grad_(True)
