@@ -49,7 +49,7 @@ def test_the_reaching_episodes_are_kept_with_their_observations_actions_and_retu
     callback.on_training_start({}, {})
     expert = TimeToGoExpert(settings, margin=0.10)
     venv.seed(4)
-    obs = venv.reset()
+    obs = np.asarray(venv.reset())
     seen: list[tuple[np.ndarray, np.ndarray, float]] = []
     episodes: list[tuple[bool, list[tuple[np.ndarray, np.ndarray, float]]]] = []
     # Two episodes: the planner's reach, then one that drives the elbow into its limit.
@@ -57,6 +57,7 @@ def test_the_reaching_episodes_are_kept_with_their_observations_actions_and_retu
         actions = expert(obs) if not episodes else np.array([[0.0, 1.0]])
         model._last_obs = obs  # as SB3 holds it while the callback runs
         new_obs, rewards, dones, infos = venv.step(actions)
+        new_obs = np.asarray(new_obs)
         seen.append((obs[0].copy(), actions[0].copy(), float(rewards[0])))
         callback.update_locals(
             {"buffer_actions": actions, "rewards": rewards, "dones": dones, "infos": infos}
