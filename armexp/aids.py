@@ -137,10 +137,19 @@ SELF_IMITATION = AidDeclaration(
     ),
     frozenset({"sac"}),  # a term of SAC's own actor update (armexp.agents.sac)
 )  # fmt: skip
+COUNT_BONUS = AidDeclaration(
+    "count_bonus", "armexp.agents.novelty.CountBonus", False, "count bonus",
+    lambda a: (
+        f"an exploration bonus {number_arg(a, 'beta'):g}/√N over posture cells of "
+        f"{number_arg(a, 'cell'):g} rad added to the stored rewards, falling to 0 at "
+        f"{number_arg(a, 'until') * 100:g} % of the budget"
+    ),
+    OFF_POLICY,  # it adds to the rewards a replay buffer stores
+)  # fmt: skip
 
 #: Every aid, in the order the presets list them.
 AIDS = (DEMONSTRATIONS, CLONING, PRETRAINING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS,
-        RANDOM_STARTS, HER, COLOURED_NOISE, SELF_IMITATION)  # fmt: skip
+        RANDOM_STARTS, HER, COLOURED_NOISE, SELF_IMITATION, COUNT_BONUS)  # fmt: skip
 
 
 def declared(target: str) -> AidDeclaration | None:
