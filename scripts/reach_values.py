@@ -1,0 +1,123 @@
+"""The best return Table I's reward allows from the start posture of the 2-link paper arm, and
+whether the policy that earns it reaches the target: value iteration over the joint grid that one
+30 ms action at the velocity bounds moves across.
+
+    python scripts/reach_values.py --target -0.02 -0.60 --gamma 0.995
+    python scripts/reach_values.py --eval-run <id> --below -2.0     # every such held-out target
+
+The model is kinematic (the joints follow the commanded velocities at once) and has no
+obstacles, so for reaching it is an upper bound: where its optimal policy does not reach a
+target, no policy of the real environment that maximises Table I's return at that γ reaches it.
+Per step: −log10(1 + e − 0.04) at the tip error e after it, −1 more if e grew; +200 on reaching
+(e < 0.04 m), −50 on leaving a joint limit, both terminal; no time limit (docs/plain_agent.md,
+"Which postures the misses need").
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+LINKS, THRESHOLD, PERIOD = (1.0, 0.8), 0.04, 0.03
+LOWER = np.array([-math.pi / 4, -5 * math.pi / 6])
+UPPER = np.array([3 * math.pi / 4, 5 * math.pi / 6])
+STEP = np.array([0.1, 0.4]) * PERIOD  # Table II's velocity bounds over one action
+START = (0.0, math.pi / 2)
+MOVES = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+
+
+class JointGrid:
+    """The joint angles one action at the bounds apart, within the limits, and the tip at each."""
+
+    def __init__(self) -> None:
+        n = ((UPPER - LOWER) / STEP).astype(int) + 1
+        q1 = LOWER[0] + STEP[0] * np.arange(n[0])
+        q2 = LOWER[1] + STEP[1] * np.arange(n[1])
+        self.q1, self.q2 = np.meshgrid(q1, q2, indexing="ij")
+        l1, l2 = LINKS
+        self.x = l1 * np.cos(self.q1) + l2 * np.cos(self.q1 + self.q2)
+        self.y = l1 * np.sin(self.q1) + l2 * np.sin(self.q1 + self.q2)
+        i, j = np.rint((np.array(START) - LOWER) / STEP).astype(int)
+        self.start = (int(i), int(j))
+
+
+def _shifted(n: int, d: int) -> tuple[slice, slice]:
+    """Source and destination slices of a move by ``d`` cells along an axis of ``n``."""
+    return slice(max(0, -d), n - max(0, d)), slice(max(0, d), n - max(0, -d))
+
+
+def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: float = 1e-2
+            ) -> tuple[float, str, int]:  # fmt: skip
+    """V*(start), how the greedy policy's episode ends (``reached``, ``joint_limit`` or
+    ``stays``, holding still for ever) and after how many steps."""
+    error = np.hypot(grid.x - target[0], grid.y - target[1])
+    reach = error < THRESHOLD
+    value = np.zeros_like(error)
+    n1, n2 = error.shape
+    while True:
+        best = np.full_like(error, -np.inf)
+        choice = np.zeros(error.shape, dtype=np.int8)
+        for k, (a, b) in enumerate(MOVES):
+            q = np.full_like(error, -50.0)  # off the grid: a joint left its limits
+            (s1, d1), (s2, d2) = _shifted(n1, a), _shifted(n2, b)
+            after = error[d1, d2]
+            reward = -np.log10(1 + after - THRESHOLD) - (after > error[s1, s2])
+            q[s1, s2] = np.where(reach[d1, d2], 200.0, reward + gamma * value[d1, d2])
+            better = q > best
+            best, choice = np.where(better, q, best), np.where(better, k, choice)
+        best[reach] = 0.0
+        change = float(np.max(np.abs(best - value)))
+        value = best
+        if change < tol:
+            break
+    i, j = grid.start
+    for steps in range(1, 5000):
+        a, b = MOVES[choice[i, j]]
+        if (a, b) == (0, 0):
+            return float(value[grid.start]), "stays", steps
+        if not (0 <= i + a < n1 and 0 <= j + b < n2):
+            return float(value[grid.start]), "joint_limit", steps
+        i, j = i + a, j + b
+        if reach[i, j]:
+            return float(value[grid.start]), "reached", steps
+    return float(value[grid.start]), "stays", 5000
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--target", nargs=2, type=float, action="append", default=[])
+    parser.add_argument("--eval-run", help="every random target of this eval run (--below)")
+    parser.add_argument(
+        "--below", type=float, default=-2.0,
+        help="with --eval-run: targets whose posture needs q2 below this (rad)",
+    )  # fmt: skip
+    parser.add_argument("--store", default="sqlite:///runs/mlflow.db")
+    parser.add_argument("--gamma", type=float, default=0.995)
+    args = parser.parse_args()
+    targets = [tuple(t) for t in args.target]
+    if args.eval_run:
+        import mlflow
+        from mlflow.tracking import MlflowClient
+
+        sys.path.insert(0, str(Path(__file__).parent))
+        from misses_by_posture import elbow_needed, episodes, full_id
+
+        mlflow.set_tracking_uri(args.store)
+        frame = episodes(MlflowClient(), full_id(args.eval_run))
+        for x, y in zip(frame.target_x, frame.target_y, strict=True):
+            start_side, q2 = elbow_needed(x, y)
+            if not start_side and q2 < args.below:
+                targets.append((x, y))
+    grid = JointGrid()
+    print("x, y, V*(start), greedy episode, steps")
+    for x, y in targets:
+        value, end, steps = optimal(grid, (x, y), args.gamma)
+        print(f"{x:+.3f}, {y:+.3f}, {value:.1f}, {end}, {steps}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
