@@ -76,10 +76,10 @@ def _model(variant: str) -> ResumableSAC:
 
         def add_gradient(*_: object) -> None:
             with torch.enable_grad():
-                obs, actions = term.batch()
+                obs, actions, returns = term.batch()
                 with torch.no_grad():
                     q = torch.cat(model.critic(obs, actions), dim=1).min(dim=1).values
-                term.loss(model.actor(obs, deterministic=True), actions, q).backward()
+                term.loss(model.actor(obs, deterministic=True), actions, q, returns).backward()
 
         model.actor.optimizer.register_step_pre_hook(add_gradient)
     return model
