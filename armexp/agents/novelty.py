@@ -1,12 +1,13 @@
 """A count-based exploration bonus over the arm's observed posture (the ``count_bonus`` aid).
 
 The non-privileged agents miss the targets below the base whose only posture within the joint
-limits has the elbow folded the other way from the start, within about 0.6 rad of its lower
+limits has the elbow folded the other way from the start, within about 0.42 rad of its lower
 limit (docs/plain_agent.md, "Which postures the misses need"): a swing of the forearm through
-3.6–4.2 rad that neither white nor coloured noise around the policy carries through, so that the
-stochastic policy itself never reaches them. A bonus for postures the agent has rarely been in
-(Strehl & Littman, 2008; the pseudo-counts of Bellemare et al., 2016, and the hashed counts of
-Tang et al., 2017, in their simplest form: a grid) pays it to go where it has not been:
+3.8–4.2 rad that neither white nor coloured noise around the policy carries through, so that the
+final policies' own sampling almost never reaches them. A bonus for postures the agent has
+rarely been in (Strehl & Littman, 2008; the pseudo-counts of Bellemare et al., 2016, and the
+hashed counts of Tang et al., 2017, in their simplest form: a grid) pays it to go where it has
+not been:
 
     r⁺(s') = β(t) / √N(φ(q'))
 
@@ -16,7 +17,8 @@ first step to 0 at the share ``until`` of the training budget, so that the criti
 environment's own reward alone over the rest of training. The bonus is added to the reward the
 replay buffer stores; episode returns, success rates, checks and evaluations are the
 environment's own. It reads the joint angles of the observation only: no planner, no obstacle
-knowledge (not privileged).
+knowledge (not privileged). The counts are not part of a checkpoint: a resumed run counts
+afresh. At three seeds it left the misses where they were (docs/plain_agent.md).
 """
 
 from __future__ import annotations
