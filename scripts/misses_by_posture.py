@@ -15,26 +15,37 @@ from __future__ import annotations
 
 import argparse
 import math
+from functools import cache
 
 import mlflow
 import pandas as pd
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-LINKS = (1.0, 0.8)
-SHOULDER, ELBOW = (-math.pi / 4, 3 * math.pi / 4), (-5 * math.pi / 6, 5 * math.pi / 6)
+from armexp.config import compose_config
+from armexp.envs.factory import settings_from_config
+from armexp.envs.reach import ReachSettings
+
 BANDS = [-5 * math.pi / 6 - 1e-9, -2.2, -2.0, -1.8, -1.5, -1.0, 0.0]
+
+
+@cache
+def paper_settings() -> ReachSettings:
+    """The default environment's settings: the paper's arm, its limits and bounds, Table I."""
+    return settings_from_config(compose_config([]))
 
 
 def elbow_needed(x: float, y: float) -> tuple[bool, float]:
     """(whether a posture with q2 > 0 is within the limits, the q2 of the posture used)."""
-    l1, l2 = LINKS
+    settings = paper_settings()
+    l1, l2 = settings.plant.arm.lengths_array
+    lower, upper = settings.joint_lower, settings.joint_upper
     c2 = max(-1.0, min(1.0, (x * x + y * y - l1 * l1 - l2 * l2) / (2 * l1 * l2)))
     feasible = []
     for sign in (1.0, -1.0):
         q2 = sign * math.acos(c2)
         q1 = math.atan2(y, x) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
-        if SHOULDER[0] <= q1 <= SHOULDER[1] and ELBOW[0] <= q2 <= ELBOW[1]:
+        if lower[0] <= q1 <= upper[0] and lower[1] <= q2 <= upper[1]:
             feasible.append(q2)
     up = [q for q in feasible if q > 0]
     return bool(up), (up or feasible or [float("nan")])[0]
@@ -65,7 +76,6 @@ def stochastic_reaches(client: MlflowClient, run_id: str, frame: pd.DataFrame, k
     from stable_baselines3 import SAC
 
     from armexp.agents.rollout import rollout
-    from armexp.envs.factory import settings_from_config
     from armexp.envs.reach import ReachEnv
 
     train_id = client.get_run(run_id).data.params["eval.train_run"]

@@ -16,32 +16,32 @@ Per step: −log10(1 + e − 0.04) at the tip error e after it, −1 more if e g
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-LINKS, THRESHOLD, PERIOD = (1.0, 0.8), 0.04, 0.03
-LOWER = np.array([-math.pi / 4, -5 * math.pi / 6])
-UPPER = np.array([3 * math.pi / 4, 5 * math.pi / 6])
-STEP = np.array([0.1, 0.4]) * PERIOD  # Table II's velocity bounds over one action
-START = (0.0, math.pi / 2)
+from armexp.config import compose_config
+from armexp.envs.factory import settings_from_config
+from armexp.envs.geometry import tips
+from armexp.envs.reach import ReachSettings
+
 MOVES = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
 
 
 class JointGrid:
-    """The joint angles one action at the bounds apart, within the limits, and the tip at each."""
+    """The joint angles one action at the velocity bounds apart, within the limits, the tip at
+    each, and the reward's terms, all from ``settings`` (the default environment's)."""
 
-    def __init__(self) -> None:
-        n = ((UPPER - LOWER) / STEP).astype(int) + 1
-        q1 = LOWER[0] + STEP[0] * np.arange(n[0])
-        q2 = LOWER[1] + STEP[1] * np.arange(n[1])
-        self.q1, self.q2 = np.meshgrid(q1, q2, indexing="ij")
-        l1, l2 = LINKS
-        self.x = l1 * np.cos(self.q1) + l2 * np.cos(self.q1 + self.q2)
-        self.y = l1 * np.sin(self.q1) + l2 * np.sin(self.q1 + self.q2)
-        i, j = np.rint((np.array(START) - LOWER) / STEP).astype(int)
+    def __init__(self, settings: ReachSettings | None = None) -> None:
+        s = settings_from_config(compose_config([])) if settings is None else settings
+        self.settings = s
+        lower, step = s.joint_lower, s.velocity_bound * s.action_period
+        n = ((s.joint_upper - lower) / step).astype(int) + 1
+        axes = [lower[k] + step[k] * np.arange(n[k]) for k in range(2)]
+        q = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+        self.x, self.y = np.moveaxis(tips(q, s.plant.arm.lengths_array), -1, 0)
+        i, j = np.rint((s.q0 - lower) / step).astype(int)
         self.start = (int(i), int(j))
 
 
@@ -54,19 +54,21 @@ def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: flo
             ) -> tuple[float, str, int]:  # fmt: skip
     """V*(start), how the greedy policy's episode ends (``reached``, ``joint_limit`` or
     ``stays``, holding still for ever) and after how many steps."""
+    s = grid.settings
     error = np.hypot(grid.x - target[0], grid.y - target[1])
-    reach = error < THRESHOLD
+    reach = error < s.reach_threshold
     value = np.zeros_like(error)
     n1, n2 = error.shape
     while True:
         best = np.full_like(error, -np.inf)
         choice = np.zeros(error.shape, dtype=np.int8)
         for k, (a, b) in enumerate(MOVES):
-            q = np.full_like(error, -50.0)  # off the grid: a joint left its limits
+            q = np.full_like(error, -s.boundary_penalty)  # off the grid: a limit left
             (s1, d1), (s2, d2) = _shifted(n1, a), _shifted(n2, b)
             after = error[d1, d2]
-            reward = -np.log10(1 + after - THRESHOLD) - (after > error[s1, s2])
-            q[s1, s2] = np.where(reach[d1, d2], 200.0, reward + gamma * value[d1, d2])
+            grew = s.growth_penalty * (after > error[s1, s2])
+            reward = -np.log10(1 + after - s.reach_threshold) - grew
+            q[s1, s2] = np.where(reach[d1, d2], s.reach_reward, reward + gamma * value[d1, d2])
             better = q > best
             best, choice = np.where(better, q, best), np.where(better, k, choice)
         best[reach] = 0.0
