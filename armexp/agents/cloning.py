@@ -30,7 +30,7 @@ from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.demonstrations import Demonstration, PlannerDemonstrations, planned
 from armexp.agents.sac import ResumableSAC
-from armexp.agents.terms import TermBatch
+from armexp.agents.terms import TermBatch, weighted_cloning
 
 
 class DemonstrationCloning:
@@ -106,8 +106,7 @@ class DemonstrationCloning:
         """The weighted cloning loss of the actor's deterministic actions ``mode`` at a `batch`
         whose actions are ``actions`` and whose critic value is ``q`` (no gradient); no side
         effects, so that a compiled update can trace it."""
-        error = ((mode - actions) ** 2).mean(dim=1)
-        return self.weight * q.abs().mean() * error.mean()
+        return weighted_cloning(self.weight, mode, actions, q)
 
     def record(self, loss: float) -> None:
         """Log an update's cloning loss (``train/bc_loss``, the mean over a call's steps)."""

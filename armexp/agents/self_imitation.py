@@ -7,8 +7,8 @@ folds the elbow into its limit and the detour swings it the other way, the criti
 the two directions has two peaks, and a gradient step from the fold's side does not cross the
 valley between them. Self-imitation learning (Oh, Guo, Singh & Lee, ICML 2018) imitates the
 agent's own past actions where they did better than it expects now. Here, as a term of SAC's
-actor update with the cloning aid's scale (`armexp.agents.cloning`) and CRR's binary filter
-(Wang et al., NeurIPS 2020):
+actor update with the cloning aid's scale (`armexp.agents.terms.weighted_cloning`) and CRR's
+binary filter (Wang et al., NeurIPS 2020):
 
     L_self = w · mean|Q(s, a)| · E_S[1[R(s, a) > Q(s, a)] · ‖μ(s) − a‖²]
 
@@ -34,7 +34,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
 from armexp.agents.sac import ResumableSAC
-from armexp.agents.terms import TermBatch
+from armexp.agents.terms import TermBatch, weighted_cloning
 
 
 def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
@@ -103,9 +103,7 @@ class OwnReaches:
     ) -> torch.Tensor:  # fmt: skip
         """L_self above; no side effects, so that a compiled update can trace it."""
         assert returns is not None  # `batch` always gives them
-        better = (returns > q).to(mode.dtype)
-        error = ((mode - actions) ** 2).mean(dim=1)
-        return self.weight * q.abs().mean() * (better * error).mean()
+        return weighted_cloning(self.weight, mode, actions, q, (returns > q).to(mode.dtype))
 
     def record(self, loss: float) -> None:
         """Log an update's loss (``train/self_imitation_loss``, the mean over a call's steps)."""
@@ -151,9 +149,9 @@ class ReachingEpisodes(BaseCallback):
                 returns = discounted_returns(np.asarray(episode[2]), self.gamma)
                 self.kept.add(np.stack(episode[0]), np.stack(episode[1]), returns)
                 self.reached += 1
+                if len(self.kept) >= self.kept.model.batch_size:
+                    self.kept.attach()
             self.episodes[i] = ([], [], [])
-        if len(self.kept) >= self.kept.model.batch_size:
-            self.kept.attach()
         return True
 
 

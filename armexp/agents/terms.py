@@ -40,3 +40,16 @@ class ActorTerm(Protocol):
     ) -> torch.Tensor:  # fmt: skip
         """`value`, recorded (the eager updates)."""
         ...
+
+
+def weighted_cloning(
+    weight: float, mode: torch.Tensor, actions: torch.Tensor, q: torch.Tensor,
+    keep: torch.Tensor | None = None,
+) -> torch.Tensor:  # fmt: skip
+    """w · mean|Q| · E[k · ‖μ(s) − a‖²] (the squared error averaged over the action's entries):
+    behaviour cloning scaled by the critics' magnitude, as TD3+BC normalises it, with ``keep``
+    (k,) the 0/1 weight of each state (None: every one)."""
+    error = ((mode - actions) ** 2).mean(dim=1)
+    if keep is not None:
+        error = keep * error
+    return weight * q.abs().mean() * error.mean()
