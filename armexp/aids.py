@@ -145,6 +145,12 @@ COUNT_BONUS = AidDeclaration(
         f"{number_arg(a, 'until') * 100:g} % of the budget"
     ),
     OFF_POLICY,  # it adds to the rewards a replay buffer stores
+    lambda agent: (
+        "agent.aids.her: HER recomputes the rewards of the samples it relabels with the "
+        "environment's own function, so they would lose the bonus and the rest keep it; "
+        "remove one of the two (~agent.aids.her or ~agent.aids.count_bonus)"
+        if "her" in (agent.get("aids") or {}) else None
+    ),
 )  # fmt: skip
 
 #: Every aid, in the order the presets list them.

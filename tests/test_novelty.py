@@ -101,3 +101,8 @@ def test_a_non_privileged_preset_trains_with_the_count_bonus_and_others_are_refu
         runs_dir, capsys, [*base, COUNT.replace("beta:0.3", "beta:0")],
         "agent.aids.count_bonus is not allowed", "beta=0",
     )  # fmt: skip
+    her = "+agent.aids.her={_target_:armexp.agents.relabel.GoalRelabelling,ratio:0.5}"
+    refused_in_one_sentence(
+        runs_dir, capsys, [*base, "agent.n_steps=1", her, COUNT],
+        "agent.aids.count_bonus is not allowed with agent.aids.her", "~agent.aids.her",
+    )  # fmt: skip
