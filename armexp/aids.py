@@ -145,12 +145,13 @@ COUNT_BONUS = AidDeclaration(
         f"{number_arg(a, 'until') * 100:g} % of the budget"
     ),
     OFF_POLICY,  # it adds to the rewards a replay buffer stores
-    lambda agent: (
-        "agent.aids.her: HER recomputes the rewards of the samples it relabels with the "
+    lambda agent: next((
+        f"agent.aids.{key}: HER recomputes the rewards of the samples it relabels with the "
         "environment's own function, so they would lose the bonus and the rest keep it; "
-        "remove one of the two (~agent.aids.her or ~agent.aids.count_bonus)"
-        if "her" in (agent.get("aids") or {}) else None
-    ),
+        f"remove one of the two (~agent.aids.{key} or ~agent.aids.count_bonus)"
+        for key, aid in (agent.get("aids") or {}).items()
+        if key == HER.name or (isinstance(aid, Mapping) and aid.get("_target_") == HER.target)
+    ), None),
 )  # fmt: skip
 
 #: Every aid, in the order the presets list them.

@@ -106,3 +106,8 @@ def test_a_non_privileged_preset_trains_with_the_count_bonus_and_others_are_refu
         runs_dir, capsys, [*base, "agent.n_steps=1", her, COUNT],
         "agent.aids.count_bonus is not allowed with agent.aids.her", "~agent.aids.her",
     )  # fmt: skip
+    hindsight = her.replace("aids.her", "aids.hindsight")  # HER under another name is HER
+    refused_in_one_sentence(
+        runs_dir, capsys, [*base, "agent.n_steps=1", hindsight, COUNT],
+        "agent.aids.count_bonus is not allowed with agent.aids.hindsight",
+    )  # fmt: skip
