@@ -22,9 +22,10 @@ import pandas as pd
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-from armexp.config import compose_config
+from armexp.config import ConfigError, compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import ReachSettings
+from armexp.tracking.run_ids import resolve
 
 BANDS = [-5 * math.pi / 6 - 1e-9, -2.2, -2.0, -1.8, -1.5, -1.0, 0.0]
 
@@ -52,15 +53,12 @@ def elbow_needed(x: float, y: float) -> tuple[bool, float]:
 
 
 def full_id(prefix: str) -> str:
-    """The id of the one run whose id starts with ``prefix``."""
-    found = mlflow.search_runs(
-        search_all_experiments=True, filter_string=f"attributes.run_id LIKE '{prefix}%'"
-    )
-    if len(found) != 1:
-        raise SystemExit(
-            f"{prefix}: {len(found)} runs in the store start with it; give more of the id."
-        )
-    return str(found.run_id.iloc[0])
+    """The id of the one run whose id starts with ``prefix`` (armexp's own resolver, its sentence
+    on exit where there is not exactly one)."""
+    try:
+        return resolve(MlflowClient(), prefix, "run id", mlflow.get_tracking_uri())
+    except ConfigError as refused:
+        raise SystemExit(str(refused)) from None
 
 
 def episodes(client: MlflowClient, run_id: str) -> pd.DataFrame:

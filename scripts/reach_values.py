@@ -8,8 +8,9 @@ whether the policy that earns it reaches the target: value iteration over the jo
 The model is kinematic (the joints follow the commanded velocities at once) and has no
 obstacles, so for reaching it is an upper bound: where its optimal policy does not reach a
 target, no policy of the real environment that maximises Table I's return at that γ reaches it.
-Per step: −log10(1 + e − 0.04) at the tip error e after it, −1 more if e grew; +200 on reaching
-(e < 0.04 m), −50 on leaving a joint limit, both terminal; no time limit (docs/plain_agent.md,
+Per step, the environment's own reward (`armexp.envs.kernel.goal_rewards`): −log10(1 + e − 0.04)
+at the tip error e after it, −1 more if e grew; +200 on reaching (e < 0.04 m), and −50 on leaving
+a joint limit, both terminal; no time limit (docs/plain_agent.md,
 "Which postures the misses need").
 """
 
@@ -24,7 +25,8 @@ import numpy as np
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import tips
-from armexp.envs.reach import ReachSettings
+from armexp.envs.kernel import goal_rewards
+from armexp.envs.reach import ReachSettings, reward_params
 
 MOVES = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
 
@@ -59,16 +61,24 @@ def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: flo
     reach = error < s.reach_threshold
     value = np.zeros_like(error)
     n1, n2 = error.shape
+    tip = np.stack([grid.x, grid.y], axis=-1)
+    params = reward_params(s)
+    # Each move's reward from every cell, the environment's own function (`goal_rewards`: the
+    # reach reward where the cell moved to reaches), once: it does not change with the values.
+    moves = []
+    for a, b in MOVES:
+        (s1, d1), (s2, d2) = _shifted(n1, a), _shifted(n2, b)
+        before, after = tip[s1, s2].reshape(-1, 2), tip[d1, d2].reshape(-1, 2)
+        goals = np.broadcast_to(np.asarray(target, dtype=float), before.shape).copy()
+        rewards, reached = goal_rewards(before, after, goals, params)
+        shape = error[s1, s2].shape
+        moves.append((s1, s2, d1, d2, rewards.reshape(shape), reached.reshape(shape)))
     while True:
         best = np.full_like(error, -np.inf)
         choice = np.zeros(error.shape, dtype=np.int8)
-        for k, (a, b) in enumerate(MOVES):
+        for k, (s1, s2, d1, d2, reward, reached) in enumerate(moves):
             q = np.full_like(error, -s.boundary_penalty)  # off the grid: a limit left
-            (s1, d1), (s2, d2) = _shifted(n1, a), _shifted(n2, b)
-            after = error[d1, d2]
-            grew = s.growth_penalty * (after > error[s1, s2])
-            reward = -np.log10(1 + after - s.reach_threshold) - grew
-            q[s1, s2] = np.where(reach[d1, d2], s.reach_reward, reward + gamma * value[d1, d2])
+            q[s1, s2] = np.where(reached, reward, reward + gamma * value[d1, d2])
             better = q > best
             best, choice = np.where(better, q, best), np.where(better, k, choice)
         best[reach] = 0.0
