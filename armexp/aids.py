@@ -154,9 +154,34 @@ COUNT_BONUS = AidDeclaration(
     ), None),
 )  # fmt: skip
 
+LIMIT_GUARD = AidDeclaration(
+    "limit_guard", "armexp.agents.limit_guard.LimitGuard", False, "joint-limit guard",
+    lambda a: (
+        f"actions cut to keep the joint reference {number_arg(a, 'margin'):g} rad inside the "
+        "joint limits, in training and evaluation"
+    ),
+)  # fmt: skip
+
 #: Every aid, in the order the presets list them.
 AIDS = (DEMONSTRATIONS, CLONING, PRETRAINING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS,
-        RANDOM_STARTS, HER, COLOURED_NOISE, SELF_IMITATION, COUNT_BONUS)  # fmt: skip
+        RANDOM_STARTS, HER, COLOURED_NOISE, SELF_IMITATION, COUNT_BONUS,
+        LIMIT_GUARD)  # fmt: skip
+
+
+def limit_guard_margin(agent: Mapping[str, Any] | None) -> float | None:
+    """The margin (rad) of the ``limit_guard`` aid in an ``agent`` config (found by its
+    ``_target_``, under any key), or None without it: the guard acts in the environment
+    (`armexp.envs.limit_guard`), so every environment built for the policy (training, its
+    held-out checks, evaluation, replay) reads it from the policy's config."""
+    for aid in ((agent or {}).get("aids") or {}).values():
+        if isinstance(aid, Mapping) and aid.get("_target_") == LIMIT_GUARD.target:
+            return float(aid.get("margin", DEFAULT_GUARD_MARGIN))
+    return None
+
+
+#: The guard's margin when its config gives none (rad): above the tracking error of the tuned
+#: controllers at the joint speed bounds, small beside the reach threshold's 0.04 m.
+DEFAULT_GUARD_MARGIN = 0.02
 
 
 def declared(target: str) -> AidDeclaration | None:

@@ -6,8 +6,9 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
+from armexp.aids import limit_guard_margin
 from armexp.builders import build_plant, controller_gains
 from armexp.envs.reach import ReachEnv, ReachSettings
 from armexp.sim.controllers import KINDS, gain_vector
@@ -65,6 +66,7 @@ def settings_from_config(
         boundary_penalty=float(e.boundary_penalty),
         collision_penalty=float(e.collision_penalty),
         growth_penalty=float(e.growth_penalty),
+        limit_guard=limit_guard_margin(OmegaConf.select(cfg, "agent", default=None)),
         path_margin=float(e.path_margin),
         target_margin=float(e.target_margin),
         min_target_distance=float(e.min_target_distance),

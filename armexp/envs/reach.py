@@ -19,6 +19,7 @@ from gymnasium import spaces
 
 from armexp.envs.geometry import Array, joint_positions, tips
 from armexp.envs.kernel import env_step, goal_rewards, observe
+from armexp.envs.limit_guard import guarded_action
 from armexp.envs.observation import ObservationLayout
 from armexp.envs.render import Canvas
 from armexp.envs.workspace import (
@@ -68,6 +69,9 @@ class ReachSettings:
     workspace_cells: int = 40_000
     #: The reference generator between actions (`armexp.sim.step.REFERENCES`).
     reference: str = "ramp"
+    #: Actions are cut to keep q_d this far (rad) inside the joint limits
+    #: (`armexp.envs.limit_guard`, the agent's ``limit_guard`` aid); None: they are not.
+    limit_guard: float | None = None
 
     @property
     def hold_steps(self) -> int:
@@ -129,7 +133,9 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
     the velocity bounds of Table II (q̇1 ∈ [−0.1, 0.1], q̇2 ∈ [−0.4, 0.4] rad/s for the paper
     arm). Across the action period (30 ms) the reference q̇_d ramps linearly from the previous
     action to this one (``reference="hold"``: it jumps to it), while the controller tracks
-    q_d = ∫q̇_d at 1 kHz.
+    q_d = ∫q̇_d at 1 kHz. With ``settings.limit_guard`` (the agent's ``limit_guard`` aid) an action
+    that would carry q_d closer than that margin to a joint limit is cut first
+    (`armexp.envs.limit_guard`).
 
     ## Observation Space
     ``Box((6 + n + m,), float32)`` as eq. 5a (eq. 4a when m = 0):
@@ -216,6 +222,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         #: that draw their target (`set_start_share`); `moved_starts` counts them.
         self._start_share = 0.0
         self.moved_starts = 0
+        #: Steps whose action the joint-limit guard cut (`ReachSettings.limit_guard`).
+        self.guarded = 0
         self.tip = np.zeros(2)
         self.error = 0.0
         self.steps = 0
@@ -265,6 +273,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             return self._observation(), -self.settings.boundary_penalty, True, False, self._info()
         log = np.zeros((self._hold, self._log_width)) if self.record else self._no_log
         obs = np.empty(self._obs_low.shape[0], dtype=np.float32)
+        if self.settings.limit_guard is not None:
+            action = self._guard(action)
         reward, status, done, self.error = env_step(
             *sim.kernel_args(), self._hold, np.asarray(action, dtype=np.float64), self._bound,
             self._lower, self._upper, self._obstacles, self.target, self.tip,
@@ -280,6 +290,19 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         if truncated:
             self.reason = "time_limit"
         return obs, float(reward), terminated, truncated, self._info()
+
+    def _guard(self, action: np.ndarray) -> np.ndarray:
+        """The action the joint-limit guard lets through (`armexp.envs.limit_guard`); counts the
+        steps it cut in `guarded`."""
+        sim, s = self.sim, self.settings
+        assert s.limit_guard is not None
+        cut = guarded_action(
+            action, sim.q_d, sim.command, self._bound, self._lower, self._upper,
+            s.limit_guard, s.action_period, sim.ramp,
+        )  # fmt: skip
+        if np.any(np.abs(cut - np.clip(action, -1.0, 1.0)) > 1e-12):
+            self.guarded += 1
+        return cut
 
     def goal_rewards(
         self, prev_tips: np.ndarray, tips: np.ndarray, goals: np.ndarray
