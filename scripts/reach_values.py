@@ -4,6 +4,7 @@ whether the policy that earns it reaches the target: value iteration over the jo
 
     python scripts/reach_values.py --target -0.02 -0.60 --gamma 0.995
     python scripts/reach_values.py --eval-run <id> --below -2.0     # every such held-out target
+    python scripts/reach_values.py --target -0.02 -0.60 --guard     # with the joint-limit guard
 
 The model is kinematic (the joints follow the commanded velocities at once) and has no
 obstacles, so for reaching it is an upper bound: where its optimal policy does not reach a
@@ -52,10 +53,12 @@ def _shifted(n: int, d: int) -> tuple[slice, slice]:
     return slice(max(0, -d), n - max(0, d)), slice(max(0, d), n - max(0, -d))
 
 
-def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: float = 1e-2
-            ) -> tuple[float, str, int]:  # fmt: skip
+def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: float = 1e-2,
+            guard: bool = False) -> tuple[float, str, int]:  # fmt: skip
     """V*(start), how the greedy policy's episode ends (``reached``, ``joint_limit`` or
-    ``stays``, holding still for ever) and after how many steps."""
+    ``stays``, holding still for ever) and after how many steps. ``guard``: a move past a limit
+    is not made (the joint-limit guard, `armexp.envs.limit_guard`; the joint stops at the limit,
+    which is the move without that joint) instead of ending the episode."""
     s = grid.settings
     error = np.hypot(grid.x - target[0], grid.y - target[1])
     reach = error < s.reach_threshold
@@ -77,7 +80,8 @@ def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: flo
         best = np.full_like(error, -np.inf)
         choice = np.zeros(error.shape, dtype=np.int8)
         for k, (s1, s2, d1, d2, reward, reached) in enumerate(moves):
-            q = np.full_like(error, -s.boundary_penalty)  # off the grid: a limit left
+            # Off the grid: a limit left, or under the guard a move it does not let through.
+            q = np.full_like(error, -np.inf if guard else -s.boundary_penalty)
             q[s1, s2] = np.where(reached, reward, reward + gamma * value[d1, d2])
             better = q > best
             best, choice = np.where(better, q, best), np.where(better, k, choice)
@@ -109,6 +113,9 @@ def main() -> None:
     )  # fmt: skip
     parser.add_argument("--store", default="sqlite:///runs/mlflow.db")
     parser.add_argument("--gamma", type=float, default=0.995)
+    parser.add_argument(
+        "--guard", action="store_true", help="the joint-limit guard: no episode ends at a limit"
+    )
     args = parser.parse_args()
     targets = [tuple(t) for t in args.target]
     if args.eval_run:
@@ -127,7 +134,7 @@ def main() -> None:
     grid = JointGrid()
     print("x, y, V*(start), greedy episode, steps")
     for x, y in targets:
-        value, end, steps = optimal(grid, (x, y), args.gamma)
+        value, end, steps = optimal(grid, (x, y), args.gamma, guard=args.guard)
         print(f"{x:+.3f}, {y:+.3f}, {value:.1f}, {end}, {steps}", flush=True)
 
 

@@ -47,3 +47,7 @@ def test_at_table_twos_gamma_task_b_is_not_worth_reaching_and_a_nearer_target_is
     assert end == "joint_limit" and value == pytest.approx(-58.7, abs=0.5)
     value, end, steps = reach.optimal(grid, (0.32, -0.80), gamma=0.995)
     assert end == "reached" and 300 < steps < 320 and value == pytest.approx(-33.4, abs=0.5)
+    # Under the joint-limit guard no episode ends at a limit: task (b) is parked beside it, at a
+    # lower value than the fold's.
+    value, end, _ = reach.optimal(grid, (-0.02, -0.60), gamma=0.995, guard=True)
+    assert end == "stays" and value < -58.7
