@@ -119,7 +119,7 @@ def test_a_privileged_aid_in_a_non_privileged_preset_is_one_sentence_and_no_run(
     assert f"agent.aids.{aid.name} is not allowed with agent.privileged=false" in err
     without = (
         "(averaging, curriculum, missed_targets, random_starts, her, coloured_noise, "
-        "self_imitation, count_bonus)"
+        "self_imitation, count_bonus, limit_guard)"
     )
     assert f"a non-privileged preset takes only aids without it {without}" in err
     assert not (runs_dir / "mlflow.db").exists() or not stage_runs(runs_dir, "train")
