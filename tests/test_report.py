@@ -519,6 +519,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
                 aids.COLOURED_NOISE,
                 aids.SELF_IMITATION,
                 aids.COUNT_BONUS,
+                aids.LIMIT_GUARD,
             )
         }, preset
     for declaration in aids.AIDS:
@@ -530,6 +531,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
         "demonstrations": True, "cloning": True, "pretraining": True, "expert": True,
         "averaging": False, "curriculum": False, "missed_targets": False, "random_starts": False,
         "her": False, "coloured_noise": False, "self_imitation": False, "count_bonus": False,
+        "limit_guard": False,
     }  # fmt: skip
     assert aids.declared("armexp.agents.expert.ExpertLabels") is None
     assert aids.privileged_modules() == (
