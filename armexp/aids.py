@@ -168,6 +168,11 @@ AIDS = (DEMONSTRATIONS, CLONING, PRETRAINING, EXPERT, AVERAGING, CURRICULUM, MIS
         LIMIT_GUARD)  # fmt: skip
 
 
+#: The guard's margin when its config gives none (rad): above the tracking error of the tuned
+#: controllers at the joint speed bounds, small beside the reach threshold's 0.04 m.
+DEFAULT_GUARD_MARGIN = 0.02
+
+
 def limit_guard_margin(agent: Mapping[str, Any] | None) -> float | None:
     """The margin (rad) of the ``limit_guard`` aid in an ``agent`` config (found by its
     ``_target_``, under any key), or None without it: the guard acts in the environment
@@ -177,11 +182,6 @@ def limit_guard_margin(agent: Mapping[str, Any] | None) -> float | None:
         if isinstance(aid, Mapping) and aid.get("_target_") == LIMIT_GUARD.target:
             return float(aid.get("margin", DEFAULT_GUARD_MARGIN))
     return None
-
-
-#: The guard's margin when its config gives none (rad): above the tracking error of the tuned
-#: controllers at the joint speed bounds, small beside the reach threshold's 0.04 m.
-DEFAULT_GUARD_MARGIN = 0.02
 
 
 def declared(target: str) -> AidDeclaration | None:
