@@ -11,8 +11,10 @@ import math
 import numpy as np
 from numba import njit
 
+from armexp.envs.limit_guard import guarded_action
 from armexp.sim.dynamics import tip_position
 from armexp.sim.simulator import advance
+from armexp.sim.work import work_offsets
 
 # Status codes of `env_step`, in `armexp.envs.reach.REASONS` order (0 = still running).
 RUNNING, REACHED, COLLISION, JOINT_LIMIT, DIVERGED = 0, 1, 2, 3, 4
@@ -122,6 +124,7 @@ def env_step(
     ramp: bool,
     hold: int,
     action: np.ndarray,
+    guard: float,
     bound: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
@@ -133,20 +136,33 @@ def env_step(
     high: np.ndarray,
     obs: np.ndarray,
     log: np.ndarray,
-) -> tuple[float, int, int, float]:
+) -> tuple[float, int, int, float, bool]:
     """One environment step. Updates ``tip`` (x, y) in place and fills ``obs``.
 
     The arguments up to ``ramp`` are the closed loop's
     (`armexp.sim.simulator.Simulator.kernel_args`); ``hold`` controller steps run towards the
-    clipped ``action`` scaled by ``bound``.
+    clipped ``action`` scaled by ``bound``, first cut by the joint-limit guard at the margin
+    ``guard`` (rad; negative: no guard; `armexp.envs.limit_guard`).
 
-    Returns (reward, status, controller steps completed, tip error); `task_reward` gives the
-    reward and status of a step that did not diverge.
+    Returns (reward, status, controller steps completed, tip error, whether the guard cut the
+    action); `task_reward` gives the reward and status of a step that did not diverge.
     """
     n = state.shape[0] // 4
     dqd = np.empty(n)
     for j in range(n):
-        dqd[j] = min(max(float(action[j]), -1.0), 1.0) * bound[j]
+        dqd[j] = min(max(float(action[j]), -1.0), 1.0)
+    cut = False
+    if guard >= 0.0:
+        ref = work_offsets(n, int(work[1]))[1]  # the last command, where the ramp starts
+        allowed = guarded_action(
+            dqd, state[2 * n : 3 * n], work[ref : ref + n], bound, lower, upper, guard,
+            hold * dt, ramp,
+        )  # fmt: skip
+        for j in range(n):
+            cut = cut or abs(allowed[j] - dqd[j]) > 1e-12
+            dqd[j] = allowed[j]
+    for j in range(n):
+        dqd[j] *= bound[j]
     prev_error = math.hypot(tip[0] - target[0], tip[1] - target[1])
     done = advance(state, dqd, k0, hold, kind, gains, model, dt, key, work, log, ramp)
     q = state[:n]
@@ -169,4 +185,4 @@ def env_step(
         collided = segment_enters(x0, y0, tip[0], tip[1], obstacles)
         reward, status = task_reward(prev_error, error, collided, outside, params)
     observe(q, tip, target, obstacles, low, high, obs)
-    return reward, status, done, error
+    return reward, status, done, error, cut

@@ -21,10 +21,12 @@ At rest at the guarded limit (r = 0, v₀ = 0) the bound is 0: no chatter.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from armexp.sim.model import Array
 
 
+@njit(cache=True)
 def guarded_action(
     action: Array,
     q_d: Array,
@@ -37,13 +39,15 @@ def guarded_action(
     ramp: bool,
 ) -> Array:
     """``action`` (fractions of ``bound``, clipped to [−1, 1]) cut so that the reference stays
-    within [lower + margin, upper − margin]; ``command`` is the last commanded q̇_d (rad/s)."""
-    a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-    room_up = (upper - margin - q_d) / period
-    room_down = (q_d - lower - margin) / period
-    carry = 0.5 * command if ramp else 0.0
-    highest = np.clip((room_up - carry) / bound, -1.0, 1.0)
-    lowest = np.clip((-room_down - carry) / bound, -1.0, 1.0)
-    # Outside the guarded band already (a start there): the bound that heads back wins.
-    lowest = np.minimum(lowest, highest)
-    return np.clip(a, lowest, highest)
+    within [lower + margin, upper − margin]; ``command`` is the last commanded q̇_d (rad/s).
+    Compiled: `armexp.envs.kernel.env_step` calls it inside the environment step."""
+    out = np.empty(action.shape[0])
+    for j in range(action.shape[0]):
+        carry = 0.5 * command[j] if ramp else 0.0
+        room_up = (upper[j] - margin - q_d[j]) / period
+        room_down = (q_d[j] - lower[j] - margin) / period
+        highest = min(max((room_up - carry) / bound[j], -1.0), 1.0)
+        # Outside the guarded band already (a start there): the bound that heads back wins.
+        lowest = min(min(max((-room_down - carry) / bound[j], -1.0), 1.0), highest)
+        out[j] = min(max(min(max(float(action[j]), -1.0), 1.0), lowest), highest)
+    return out

@@ -19,7 +19,6 @@ from gymnasium import spaces
 
 from armexp.envs.geometry import Array, joint_positions, tips
 from armexp.envs.kernel import env_step, goal_rewards, observe
-from armexp.envs.limit_guard import guarded_action
 from armexp.envs.observation import ObservationLayout
 from armexp.envs.render import Canvas
 from armexp.envs.workspace import (
@@ -192,6 +191,8 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self._bound = np.asarray(s.velocity_bound, dtype=np.float64)
         self._lower = np.asarray(s.joint_lower, dtype=np.float64)
         self._upper = np.asarray(s.joint_upper, dtype=np.float64)
+        # The joint-limit guard's margin for the compiled step; negative: none.
+        self._guard = -1.0 if s.limit_guard is None else float(s.limit_guard)
         self._obstacles = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 3)
         self.workspace = s.workspace()
         self.sim = Simulator(s.plant, s.controller, s.gains, q0=s.q0, reference=s.reference)
@@ -273,13 +274,12 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
             return self._observation(), -self.settings.boundary_penalty, True, False, self._info()
         log = np.zeros((self._hold, self._log_width)) if self.record else self._no_log
         obs = np.empty(self._obs_low.shape[0], dtype=np.float32)
-        if self.settings.limit_guard is not None:
-            action = self._guard(action)
-        reward, status, done, self.error = env_step(
-            *sim.kernel_args(), self._hold, np.asarray(action, dtype=np.float64), self._bound,
-            self._lower, self._upper, self._obstacles, self.target, self.tip,
+        reward, status, done, self.error, cut = env_step(
+            *sim.kernel_args(), self._hold, np.asarray(action, dtype=np.float64), self._guard,
+            self._bound, self._lower, self._upper, self._obstacles, self.target, self.tip,
             self._params, self._obs_low, self._obs_high, obs, log,
         )  # fmt: skip
+        self.guarded += cut
         sim.record_steps(done, self._hold)
         if self.record:
             self._rows.append(log[: done + 1] if done < self._hold else log)
@@ -290,19 +290,6 @@ class ReachEnv(gym.Env[np.ndarray, np.ndarray]):
         if truncated:
             self.reason = "time_limit"
         return obs, float(reward), terminated, truncated, self._info()
-
-    def _guard(self, action: np.ndarray) -> np.ndarray:
-        """The action the joint-limit guard lets through (`armexp.envs.limit_guard`); counts the
-        steps it cut in `guarded`."""
-        sim, s = self.sim, self.settings
-        assert s.limit_guard is not None
-        cut = guarded_action(
-            action, sim.q_d, sim.command, self._bound, self._lower, self._upper,
-            s.limit_guard, s.action_period, sim.ramp,
-        )  # fmt: skip
-        if np.any(np.abs(cut - np.clip(action, -1.0, 1.0)) > 1e-12):
-            self.guarded += 1
-        return cut
 
     def goal_rewards(
         self, prev_tips: np.ndarray, tips: np.ndarray, goals: np.ndarray

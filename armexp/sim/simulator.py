@@ -280,12 +280,6 @@ class Simulator:
         return self.state[2 * self.n : 3 * self.n]
 
     @property
-    def command(self) -> Array:
-        """The last commanded q̇_d (rad/s), where the ramp to the next command starts."""
-        ref = TAU_START + self.n  # the reference generator's block follows τ (`work_offsets`)
-        return self._work[ref : ref + self.n]
-
-    @property
     def rho_hat(self) -> float:
         return float(self.state[4 * self.n])
 
