@@ -5,10 +5,14 @@ whether the policy that earns it reaches the target: value iteration over the jo
     python scripts/reach_values.py --target -0.02 -0.60 --gamma 0.995
     python scripts/reach_values.py --eval-run <id> --below -2.0     # every such held-out target
     python scripts/reach_values.py --target -0.02 -0.60 --guard     # with the joint-limit guard
+    python scripts/reach_values.py --target -0.02 -0.60 --guard --obstacles  # and the obstacles
 
-The model is kinematic (the joints follow the commanded velocities at once) and has no
-obstacles, so for reaching it is an upper bound: where its optimal policy does not reach a
-target, no policy of the real environment that maximises Table I's return at that γ reaches it.
+The model is kinematic (the joints follow the commanded velocities at once). Without obstacles
+it is an upper bound for reaching: where its optimal policy does not reach a target, no policy
+of the real environment that maximises Table I's return at that γ reaches it. With
+``--obstacles`` a move whose tip path enters one of the default environment's obstacles ends the
+episode with the collision penalty (−100), as the environment's step does; the grid's moves are
+the velocity bounds' only, so it then shows which ending the return prefers, not a bound.
 Per step, the environment's own reward (`armexp.envs.kernel.goal_rewards`): −log10(1 + e − 0.04)
 at the tip error e after it, −1 more if e grew; +200 on reaching (e < 0.04 m), and −50 on leaving
 a joint limit, both terminal; no time limit (docs/plain_agent.md,
@@ -53,12 +57,26 @@ def _shifted(n: int, d: int) -> tuple[slice, slice]:
     return slice(max(0, -d), n - max(0, d)), slice(max(0, d), n - max(0, -d))
 
 
+def _enters(before: np.ndarray, after: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
+    """Whether each tip segment before→after (k, 2) enters any circle (x, y, r): the
+    environment's test (`armexp.envs.kernel.segment_enters`) over arrays."""
+    hit = np.zeros(before.shape[0], dtype=bool)
+    v = after - before
+    length2 = (v**2).sum(-1)
+    for x, y, r in obstacles:
+        c = np.array([x, y]) - before
+        along = np.clip((c * v).sum(-1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+        hit |= ((c - along[:, None] * v) ** 2).sum(-1) < r * r
+    return hit
+
+
 def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: float = 1e-2,
-            guard: bool = False) -> tuple[float, str, int]:  # fmt: skip
-    """V*(start), how the greedy policy's episode ends (``reached``, ``joint_limit`` or
-    ``stays``, holding still for ever) and after how many steps. ``guard``: a move past a limit
-    is not made (the joint-limit guard, `armexp.envs.limit_guard`; the joint stops at the limit,
-    which is the move without that joint) instead of ending the episode."""
+            guard: bool = False, obstacles: bool = False) -> tuple[float, str, int]:  # fmt: skip
+    """V*(start), how the greedy policy's episode ends (``reached``, ``joint_limit``,
+    ``collision`` or ``stays``, holding still for ever) and after how many steps. ``guard``: a
+    move past a limit is not made (the joint-limit guard, `armexp.envs.limit_guard`; the joint
+    stops at the limit, which is the move without that joint) instead of ending the episode.
+    ``obstacles``: a move whose tip path enters an obstacle ends the episode with −100."""
     s = grid.settings
     error = np.hypot(grid.x - target[0], grid.y - target[1])
     reach = error < s.reach_threshold
@@ -75,14 +93,17 @@ def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: flo
         goals = np.broadcast_to(np.asarray(target, dtype=float), before.shape).copy()
         rewards, reached = goal_rewards(before, after, goals, params)
         shape = error[s1, s2].shape
-        moves.append((s1, s2, d1, d2, rewards.reshape(shape), reached.reshape(shape)))
+        hits = _enters(before, after, s.obstacles) if obstacles else np.zeros(len(before), bool)
+        moves.append((s1, s2, d1, d2, rewards.reshape(shape), reached.reshape(shape),
+                      hits.reshape(shape)))  # fmt: skip
     while True:
         best = np.full_like(error, -np.inf)
         choice = np.zeros(error.shape, dtype=np.int8)
-        for k, (s1, s2, d1, d2, reward, reached) in enumerate(moves):
+        for k, (s1, s2, d1, d2, reward, reached, hits) in enumerate(moves):
             # Off the grid: a limit left, or under the guard a move it does not let through.
             q = np.full_like(error, -np.inf if guard else -s.boundary_penalty)
             q[s1, s2] = np.where(reached, reward, reward + gamma * value[d1, d2])
+            q[s1, s2] = np.where(hits, -s.collision_penalty, q[s1, s2])
             better = q > best
             best, choice = np.where(better, q, best), np.where(better, k, choice)
         best[reach] = 0.0
@@ -97,6 +118,9 @@ def optimal(grid: JointGrid, target: tuple[float, float], gamma: float, tol: flo
             return float(value[grid.start]), "stays", steps
         if not (0 <= i + a < n1 and 0 <= j + b < n2):
             return float(value[grid.start]), "joint_limit", steps
+        s1, s2, _, _, _, _, hits = moves[choice[i, j]]
+        if hits[i - s1.start, j - s2.start]:
+            return float(value[grid.start]), "collision", steps
         i, j = i + a, j + b
         if reach[i, j]:
             return float(value[grid.start]), "reached", steps
@@ -116,6 +140,9 @@ def main() -> None:
     parser.add_argument(
         "--guard", action="store_true", help="the joint-limit guard: no episode ends at a limit"
     )
+    parser.add_argument(
+        "--obstacles", action="store_true", help="the default obstacles: a collision ends with -100"
+    )
     args = parser.parse_args()
     targets = [tuple(t) for t in args.target]
     if args.eval_run:
@@ -134,7 +161,9 @@ def main() -> None:
     grid = JointGrid()
     print("x, y, V*(start), greedy episode, steps")
     for x, y in targets:
-        value, end, steps = optimal(grid, (x, y), args.gamma, guard=args.guard)
+        value, end, steps = optimal(
+            grid, (x, y), args.gamma, guard=args.guard, obstacles=args.obstacles
+        )
         print(f"{x:+.3f}, {y:+.3f}, {value:.1f}, {end}, {steps}", flush=True)
 
 

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
 import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
@@ -51,3 +52,44 @@ def test_at_table_twos_gamma_task_b_is_not_worth_reaching_and_a_nearer_target_is
     # lower value than the fold's.
     value, end, _ = reach.optimal(grid, (-0.02, -0.60), gamma=0.995, guard=True)
     assert end == "stays" and value < -58.7
+    # Γ 0.996 is the lowest of those tried at which the optimum swings to task (b) under the
+    # guard, with the obstacles as without them; at 0.995 it parks with them too.
+    value, end, steps = reach.optimal(grid, (-0.02, -0.60), gamma=0.996, guard=True,
+                                      obstacles=True)  # fmt: skip
+    assert end == "reached" and 330 < steps < 340 and value == pytest.approx(-69.2, abs=0.5)
+    _, end, _ = reach.optimal(grid, (-0.02, -0.60), gamma=0.995, guard=True, obstacles=True)
+    assert end == "stays"
+
+
+def test_the_obstacle_test_over_arrays_is_the_environments() -> None:
+    from armexp.config import compose_config
+    from armexp.envs.factory import settings_from_config
+    from armexp.envs.kernel import segment_enters
+
+    reach = _script("reach_values")
+    obstacles = settings_from_config(compose_config([])).obstacles
+    rng = np.random.default_rng(0)
+    before, after = rng.uniform(-2, 2, (2, 2000, 2))
+    after = before + (after - before) * 0.2  # short paths as well as long
+    hits = reach._enters(before, after, obstacles)
+    expected = [segment_enters(*b, *a, obstacles) for b, a in zip(before, after, strict=True)]
+    assert hits.tolist() == expected and 50 < hits.sum() < 1950
+
+
+@pytest.mark.long
+def test_a_collision_ends_the_greedy_episode_when_it_is_the_best_ending() -> None:
+    import dataclasses
+
+    from armexp.config import compose_config
+    from armexp.envs.factory import settings_from_config
+
+    reach = _script("reach_values")
+    settings = settings_from_config(compose_config([]))
+    # A target at the centre of a 0.7 m obstacle: at γ 0.998 staying 0.66 m or more away costs
+    # more than log10(1.62) / 0.002 = 105, so running into the obstacle (-100) is the best ending.
+    ring = reach.JointGrid(dataclasses.replace(settings, obstacles=np.array([[1.3, -0.5, 0.7]])))
+    value, end, steps = reach.optimal(ring, (1.3, -0.5), gamma=0.998, guard=True, obstacles=True)
+    assert end == "collision" and -130 < value < -100 * 0.998 ** (steps - 1)
+    # Without the obstacles the same target is reached.
+    _, end, _ = reach.optimal(ring, (1.3, -0.5), gamma=0.998, guard=True)
+    assert end == "reached"
