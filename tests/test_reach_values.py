@@ -64,7 +64,7 @@ def test_at_table_twos_gamma_task_b_is_not_worth_reaching_and_a_nearer_target_is
 def test_the_obstacle_test_over_arrays_is_the_environments() -> None:
     from armexp.config import compose_config
     from armexp.envs.factory import settings_from_config
-    from armexp.envs.kernel import segment_enters
+    from armexp.envs.geometry import segment_hits
 
     reach = _script("reach_values")
     obstacles = settings_from_config(compose_config([])).obstacles
@@ -72,7 +72,7 @@ def test_the_obstacle_test_over_arrays_is_the_environments() -> None:
     before, after = rng.uniform(-2, 2, (2, 2000, 2))
     after = before + (after - before) * 0.2  # short paths as well as long
     hits = reach._enters(before, after, obstacles)
-    expected = [segment_enters(*b, *a, obstacles) for b, a in zip(before, after, strict=True)]
+    expected = [segment_hits(b, a, obstacles) for b, a in zip(before, after, strict=True)]
     assert hits.tolist() == expected and 50 < hits.sum() < 1950
 
 
