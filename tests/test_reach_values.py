@@ -52,7 +52,7 @@ def test_at_table_twos_gamma_task_b_is_not_worth_reaching_and_a_nearer_target_is
     # lower value than the fold's.
     value, end, _ = reach.optimal(grid, (-0.02, -0.60), gamma=0.995, guard=True)
     assert end == "stays" and value < -58.7
-    # Γ 0.996 is the lowest of those tried at which the optimum swings to task (b) under the
+    # γ 0.996 is the lowest of those tried at which the optimum swings to task (b) under the
     # guard, with the obstacles as without them; at 0.995 it parks with them too.
     value, end, steps = reach.optimal(grid, (-0.02, -0.60), gamma=0.996, guard=True,
                                       obstacles=True)  # fmt: skip
@@ -85,8 +85,8 @@ def test_a_collision_ends_the_greedy_episode_when_it_is_the_best_ending() -> Non
 
     reach = _script("reach_values")
     settings = settings_from_config(compose_config([]))
-    # A target at the centre of a 0.7 m obstacle: at γ 0.998 staying 0.66 m or more away costs
-    # more than log10(1.62) / 0.002 = 105, so running into the obstacle (-100) is the best ending.
+    # A target at the centre of a 0.7 m obstacle: at γ 0.998 staying outside it, 0.7 m or more
+    # away, costs log10(1.66) / 0.002 = 110 or more, so running into it (-100) is the best ending.
     ring = reach.JointGrid(dataclasses.replace(settings, obstacles=np.array([[1.3, -0.5, 0.7]])))
     value, end, steps = reach.optimal(ring, (1.3, -0.5), gamma=0.998, guard=True, obstacles=True)
     assert end == "collision" and -130 < value < -100 * 0.998 ** (steps - 1)
