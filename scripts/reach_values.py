@@ -26,11 +26,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.geometry import tips
-from armexp.envs.kernel import goal_rewards
+from armexp.envs.kernel import goal_rewards, segment_enters
 from armexp.envs.reach import ReachSettings, reward_params
 
 MOVES = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
@@ -57,16 +58,13 @@ def _shifted(n: int, d: int) -> tuple[slice, slice]:
     return slice(max(0, -d), n - max(0, d)), slice(max(0, d), n - max(0, -d))
 
 
+@njit
 def _enters(before: np.ndarray, after: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
     """Whether each tip segment before→after (k, 2) enters any circle (x, y, r): the
-    environment's test (`armexp.envs.kernel.segment_enters`) over arrays."""
-    hit = np.zeros(before.shape[0], dtype=bool)
-    v = after - before
-    length2 = (v**2).sum(-1)
-    for x, y, r in obstacles:
-        c = np.array([x, y]) - before
-        along = np.clip((c * v).sum(-1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-        hit |= ((c - along[:, None] * v) ** 2).sum(-1) < r * r
+    environment's own test, `armexp.envs.kernel.segment_enters`, over arrays."""
+    hit = np.zeros(before.shape[0], dtype=np.bool_)
+    for i in range(before.shape[0]):
+        hit[i] = segment_enters(before[i, 0], before[i, 1], after[i, 0], after[i, 1], obstacles)
     return hit
 
 
