@@ -25,7 +25,8 @@ PRESETS = sorted(p.stem for p in (config_dir() / "agent").glob("*.yaml"))
 NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red", "sac_plain_red_n10",
                   "crossq_plain_red_n10", "sac_plain_red_n10_sil",
                   "sac_plain_red_n10_count", "sac_plain_red_n10_g998",
-                  "sac_plain_guard", "sac_plain_guard_g996"]  # fmt: skip
+                  "sac_plain_guard", "sac_plain_guard_g996",
+                  "crossq_plain_guard_g996"]  # fmt: skip
 #: Small enough for seconds: tiny networks and batches, 100-step episodes, 300 steps. The
 #: eager update, because compiling the update takes a minute (tests/test_compiled_update.py
 #: covers it).
@@ -77,11 +78,12 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
     # sac_plain_red is sac_plain plus red exploration noise, sac_plain_red_n10 that with 10-step
     # returns, crossq_plain_red_n10 that with CrossQ's own (eager) update, the _sil and _count
     # presets and sac_plain_guard that with one more aid each, _g998 that with gamma 0.998,
-    # sac_plain_guard_g996 the guarded one at gamma 0.996; the others carry no aid.
+    # sac_plain_guard_g996 the guarded one at gamma 0.996, crossq_plain_guard_g996 that with
+    # CrossQ; the others carry no aid.
     assert with_aids == {"sac_plain_red", "sac_plain_red_n10", "crossq_plain_red_n10",
                          "sac_plain_red_n10_sil", "sac_plain_red_n10_count",
                          "sac_plain_red_n10_g998", "sac_plain_guard",
-                         "sac_plain_guard_g996"}  # fmt: skip
+                         "sac_plain_guard_g996", "crossq_plain_guard_g996"}  # fmt: skip
     n10 = compose_config(["agent=sac_plain_red_n10"]).agent
     for preset, aid in (("sac_plain_red_n10_sil", "self_imitation"),
                         ("sac_plain_red_n10_count", "count_bonus"),
@@ -93,6 +95,9 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
     g996 = compose_config(["agent=sac_plain_guard_g996"]).agent
     assert {k for k in guard if k != "name" and g996[k] != guard[k]} == {"gamma"}
     assert g996.gamma == 0.996
+    crossq = compose_config(["agent=crossq_plain_guard_g996"]).agent
+    assert {k for k in g996 if k != "name" and crossq[k] != g996[k]} == {"algo", "gradients"}
+    assert (crossq.algo, crossq.gradients) == ("crossq", "autograd")
     plain = compose_config(["agent=sac_plain"]).agent
     for preset, changed in (
         ("sac_plain_red", set()),
