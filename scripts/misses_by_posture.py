@@ -36,8 +36,9 @@ def paper_settings() -> ReachSettings:
     return settings_from_config(compose_config([]))
 
 
-def elbow_needed(x: float, y: float) -> tuple[bool, float]:
-    """(whether a posture with q2 > 0 is within the limits, the q2 of the posture used)."""
+def posture_needed(x: float, y: float) -> tuple[bool, float, float]:
+    """(whether a posture with q2 > 0 is within the limits, the q1 and q2 of the posture used):
+    that posture if it is within them, else the other one (NaN where neither is)."""
     settings = paper_settings()
     l1, l2 = settings.plant.arm.lengths_array
     lower, upper = settings.joint_lower, settings.joint_upper
@@ -47,9 +48,16 @@ def elbow_needed(x: float, y: float) -> tuple[bool, float]:
         q2 = sign * math.acos(c2)
         q1 = math.atan2(y, x) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
         if lower[0] <= q1 <= upper[0] and lower[1] <= q2 <= upper[1]:
-            feasible.append(q2)
-    up = [q for q in feasible if q > 0]
-    return bool(up), (up or feasible or [float("nan")])[0]
+            feasible.append((q1, q2))
+    up = [p for p in feasible if p[1] > 0]
+    q1, q2 = (up or feasible or [(math.nan, math.nan)])[0]
+    return bool(up), q1, q2
+
+
+def elbow_needed(x: float, y: float) -> tuple[bool, float]:
+    """(whether a posture with q2 > 0 is within the limits, the q2 of the posture used)."""
+    start_side, _, q2 = posture_needed(x, y)
+    return start_side, q2
 
 
 def full_id(prefix: str) -> str:

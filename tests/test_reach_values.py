@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -93,3 +94,49 @@ def test_a_collision_ends_the_greedy_episode_when_it_is_the_best_ending() -> Non
     # Without the obstacles the same target is reached.
     _, end, _ = reach.optimal(ring, (1.3, -0.5), gamma=0.998, guard=True)
     assert end == "reached"
+
+
+def test_the_scripted_swing_reaches_task_b_and_is_worth_less_the_slower_it_is_made() -> None:
+    swing = _script("swing_returns")
+    _, q1, q2 = _script("misses_by_posture").posture_needed(-0.02, -0.60)
+    assert (q1, q2) == pytest.approx((-0.677, -2.498), abs=1e-3)  # the elbow's far side
+    reason, rewards, error = swing.swing((-0.02, -0.60), 1.0)
+    # The joints' straight path clears every obstacle; 4.1 rad of elbow at 0.4 rad/s a second.
+    assert reason == "reached" and error < 0.04 and 330 < len(rewards) < 360
+    assert rewards[-1] == 200.0 and np.all(rewards[:-1] < 0)
+    full = swing.discounted(rewards, 0.996)
+    assert full == pytest.approx(-72.3, abs=1.0)  # docs/plain_agent.md, "Aimed at task (b)"
+    reason, slower, _ = swing.swing((-0.02, -0.60), 0.8)
+    assert reason == "reached" and len(slower) > len(rewards)
+    assert swing.discounted(slower, 0.996) < full - 25  # the same swing, 20 % slower
+    reason, still, error = swing.swing((-0.02, -0.60), None)
+    assert reason == "time_limit" and len(still) == 1000 and error > 1.7
+    assert swing.discounted(still, 0.996) == pytest.approx(np.sum(still * 0.996 ** np.arange(1000)))
+
+
+def test_the_aimed_training_draws_every_target_near_the_centre() -> None:
+    # In a child process: the aim patches the environment class for the process it runs in.
+    code = (
+        "import sys, numpy as np; sys.path.insert(0, 'scripts'); import aimed_training as a;"
+        "from armexp.envs.factory import make_reach; from armexp.agents.curriculum import "
+        "WideningReach; a.aim((-0.02, -0.60), 0.15); env = make_reach();"
+        "env.set_target_reach(WideningReach(1.0, 1.0, lambda: 0.0).radius());"
+        "t = np.array([env.reset()[0][:2] for _ in range(300)]);"
+        "print(np.hypot(*(t - [-0.02, -0.60]).T).max(), len({tuple(x) for x in t}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=SCRIPTS.parent, check=True,
+                         capture_output=True, text=True).stdout.split()  # fmt: skip
+    farthest, distinct = float(out[0]), int(out[1])
+    assert farthest <= 0.15 and distinct > 30  # a draw among the ~86 points there
+
+
+@pytest.mark.long
+def test_an_aimed_run_trains_and_logs_its_held_radius(runs_dir: Path) -> None:
+    from tests.helpers import SMALL_TRAIN, stage_runs
+
+    argv = [sys.executable, str(SCRIPTS / "aimed_training.py"), "--radius", "0.2", "--",
+            *SMALL_TRAIN, "agent.privileged=false", "controller.gains=paper",
+            "train.gains=config", f"tracking.runs_dir={runs_dir}"]  # fmt: skip
+    subprocess.run(argv, check=True, capture_output=True, cwd=runs_dir.parent)
+    (run,) = stage_runs(runs_dir, "train")
+    assert run.data.metrics["final/curriculum_reach"] == pytest.approx(0.2)
