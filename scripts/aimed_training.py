@@ -7,11 +7,12 @@ asks for it at every episode rather than at about one in a hundred.
         agent.max_env_steps=300000 train.gains=config controller.gains=paper
 
 It adds the ``curriculum`` aid with its distances measured from ``--centre`` instead of the
-starting tip and its radius held at ``--radius`` (patched in this process; the training
-environments step in it), so the run is the preset's in everything but the targets drawn. Aiming
-at a task uses where the task lies, which no non-privileged agent is told: the run is a
-measurement of the learner, named by its ``agent.name`` (docs/plain_agent.md, "Aimed at task
-(b)"). The held-out checks and `armexp eval` draw from the whole workspace as always.
+starting tip and its radius held at ``--radius`` (patched in this process, so the training
+environments are made to step in it: ``agent.vec_env=dummy``), so the run is the preset's in
+everything but the targets drawn. Aiming at a task uses where the task lies, which no
+non-privileged agent is told: the run is a measurement of the learner, named by its
+``agent.name`` (docs/plain_agent.md, "Aimed at task (b)"). The held-out checks and `armexp
+eval` draw from the whole workspace as always.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         "+agent.aids.curriculum={_target_:armexp.agents.curriculum.TargetCurriculum,"
         f"start:{args.radius},full_at:1.0}}"
     )
-    return armexp(["train", *args.overrides, aid])
+    return armexp(["train", *args.overrides, aid, "agent.vec_env=dummy"])
 
 
 if __name__ == "__main__":
