@@ -23,6 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from misses_by_posture import posture_needed
 
+from armexp.agents.self_imitation import discounted_returns
 from armexp.envs.factory import make_reach
 
 #: Action per radian of posture error: full speed until about 0.2 rad from the posture.
@@ -38,7 +39,7 @@ def swing(target: tuple[float, float], speed: float | None) -> tuple[str, np.nda
     if not np.isfinite(q2):
         raise SystemExit(f"--target {target[0]} {target[1]} has no posture within the limits.")
     goal = np.array([q1, q2])
-    env.reset(options={"target": target})
+    env.reset(seed=0, options={"target": target})  # the same disturbance draws every run
     rewards = []
     ended = False
     while not ended:
@@ -50,11 +51,6 @@ def swing(target: tuple[float, float], speed: float | None) -> tuple[str, np.nda
         rewards.append(reward)
         ended = terminated or truncated
     return env.reason, np.asarray(rewards), env.error
-
-
-def discounted(rewards: np.ndarray, gamma: float) -> float:
-    """The return from the episode's start, discounted at ``gamma``."""
-    return float(np.sum(rewards * gamma ** np.arange(len(rewards))))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -71,7 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     for speed in [*args.speeds, None]:
         reason, rewards, error = swing(target, speed)
         name = "still" if speed is None else f"{speed:.2f}"
-        values = " | ".join(f"{discounted(rewards, g):.1f}" for g in args.gammas)
+        values = " | ".join(f"{discounted_returns(rewards, g)[0]:.1f}" for g in args.gammas)
         print(f"{name} | {reason} ({100 * error:.1f} cm) | {len(rewards)} | {rewards.sum():.1f} | "
               f"{values}")  # fmt: skip
 

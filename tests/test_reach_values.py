@@ -97,6 +97,8 @@ def test_a_collision_ends_the_greedy_episode_when_it_is_the_best_ending() -> Non
 
 
 def test_the_scripted_swing_reaches_task_b_and_is_worth_less_the_slower_it_is_made() -> None:
+    from armexp.agents.self_imitation import discounted_returns
+
     swing = _script("swing_returns")
     _, q1, q2 = _script("misses_by_posture").posture_needed(-0.02, -0.60)
     assert (q1, q2) == pytest.approx((-0.677, -2.498), abs=1e-3)  # the elbow's far side
@@ -105,14 +107,15 @@ def test_the_scripted_swing_reaches_task_b_and_is_worth_less_the_slower_it_is_ma
     # bound take about 340 actions of 30 ms.
     assert reason == "reached" and error < 0.04 and 330 < len(rewards) < 360
     assert rewards[-1] == 200.0 and np.all(rewards[:-1] < 0)
-    full = swing.discounted(rewards, 0.996)
+    full = discounted_returns(rewards, 0.996)[0]
     assert full == pytest.approx(-72.3, abs=1.0)  # docs/plain_agent.md, "Aimed at task (b)"
     reason, slower, _ = swing.swing((-0.02, -0.60), 0.8)
     assert reason == "reached" and len(slower) > len(rewards)
-    assert swing.discounted(slower, 0.996) < full - 25  # the same swing, 20 % slower
+    assert discounted_returns(slower, 0.996)[0] < full - 25  # the same swing, 20 % slower
     reason, still, error = swing.swing((-0.02, -0.60), None)
     assert reason == "time_limit" and len(still) == 1000 and error > 1.7
-    assert swing.discounted(still, 0.996) == pytest.approx(np.sum(still * 0.996 ** np.arange(1000)))
+    closed_form = np.sum(still * 0.996 ** np.arange(1000))
+    assert discounted_returns(still, 0.996)[0] == pytest.approx(closed_form)
 
 
 def test_the_aimed_training_draws_every_target_near_the_centre() -> None:
