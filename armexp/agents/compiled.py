@@ -171,6 +171,8 @@ class CompiledUpdate:
         """None if this update covers ``model``, else why not (one phrase)."""
         if not model.plain_update:
             return "gSDE, delayed target updates and batch norm are not covered"
+        if any(isinstance(m, nn.Dropout) for m in model.critic.modules()):
+            return "dropout critics (agent.critic_dropout) are not covered"
         if not isinstance(model.observation_space, spaces.Box):
             return "it needs array (Box) observations"
         optimizers = [model.actor.optimizer, model.critic.optimizer, model.ent_coef_optimizer]

@@ -160,14 +160,19 @@ def _sac(agent: DictConfig, env: VecEnv) -> dict[str, Any]:
 #: Every ``agent.algo``, by name.
 ALGORITHM: dict[str, Algorithm] = {
     "sac": Algorithm("sac", ResumableSAC, True, _sac),
-    "td3": Algorithm("td3", ResumableTD3, True, _td3, leaves_out=("ent_coef", "target_entropy")),
-    "tqc": Algorithm("tqc", ResumableTQC, True, _tqc),
-    "crossq": Algorithm("crossq", ResumableCrossQ, True, _crossq, leaves_out=("tau",)),
+    "td3": Algorithm(
+        "td3", ResumableTD3, True, _td3,
+        leaves_out=("ent_coef", "target_entropy", "critic_dropout"),
+    ),
+    "tqc": Algorithm("tqc", ResumableTQC, True, _tqc, leaves_out=("critic_dropout",)),
+    "crossq": Algorithm(
+        "crossq", ResumableCrossQ, True, _crossq, leaves_out=("tau", "critic_dropout")
+    ),
     "ppo": Algorithm(
         "ppo", PPO, False, _ppo,
         maps={"batch_size": "minibatch size", "critic_arch": "value network"},
         leaves_out=("tau", "buffer_size", "learning_starts", "train_freq", "gradient_steps",
-                    "ent_coef", "target_entropy", "n_steps"),
+                    "ent_coef", "target_entropy", "n_steps", "critic_dropout"),
     ),
 }  # fmt: skip
 assert tuple(ALGORITHM) == ALGORITHMS  # the schema's list of choices and this one agree

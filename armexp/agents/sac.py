@@ -11,9 +11,11 @@ import torch.nn.functional as F
 from omegaconf import DictConfig
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.sac.policies import SACPolicy
 
 from armexp.agents.algorithms import ResumeRefill
 from armexp.agents.compiled import CompiledUpdate
+from armexp.agents.droq import DroQPolicy
 from armexp.agents.terms import ActorTerm
 from armexp.config import ConfigError
 from armexp.resources import device_here
@@ -168,12 +170,20 @@ def sac_kwargs(agent: DictConfig) -> dict[str, Any]:
     arch: list[int] | dict[str, list[int]] = list(agent.net_arch)
     if agent.critic_arch is not None:
         arch = {"pi": list(agent.net_arch), "qf": list(agent.critic_arch)}
+    policy_kwargs: dict[str, Any] = {"net_arch": arch, "optimizer_kwargs": _adam(agent)}
+    if agent.get("critic_dropout") is not None:
+        policy_kwargs["critic_dropout"] = float(agent.critic_dropout)
     return {
         **off_policy_kwargs(agent),
         "ent_coef": agent.ent_coef,
         "target_entropy": target_entropy(agent),
-        "policy_kwargs": {"net_arch": arch, "optimizer_kwargs": _adam(agent)},
+        "policy_kwargs": policy_kwargs,
     }
+
+
+def sac_policy(agent: DictConfig) -> str | type[SACPolicy]:
+    """SB3's MLP policy, or DroQ's (`armexp.agents.droq`) where ``agent.critic_dropout`` is set."""
+    return "MlpPolicy" if agent.get("critic_dropout") is None else DroQPolicy
 
 
 def target_entropy(agent: DictConfig) -> str | float:
@@ -208,7 +218,7 @@ def _adam(agent: DictConfig) -> dict[str, bool]:
 
 def build_sac(agent: DictConfig, env: VecEnv, seed: int) -> ResumableSAC:
     _without_argument_checks()
-    model = ResumableSAC("MlpPolicy", env, seed=seed, verbose=0, **sac_kwargs(agent))
+    model = ResumableSAC(sac_policy(agent), env, seed=seed, verbose=0, **sac_kwargs(agent))
     return _with_gradients(model, agent)
 
 

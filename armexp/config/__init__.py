@@ -282,6 +282,12 @@ def _agent_checks(cfg: DictConfig) -> None:
             f"is SAC's own; use agent.gradients=autograd ({algo} runs its library's update) or "
             "agent.algo=sac."
         )
+    dropout = agent.get("critic_dropout")
+    if dropout is not None and algo == "sac" and agent.get("gradients") == "compiled":
+        raise ConfigError(
+            f"agent.critic_dropout={dropout} is not allowed with agent.gradients=compiled: the "
+            "compiled update does not cover dropout critics; use agent.gradients=autograd."
+        )
     if algo == "ppo":
         _rollout_fits(agent)
     # A privileged aid in a non-privileged preset is refused as such, whichever algorithm it

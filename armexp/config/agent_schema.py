@@ -125,6 +125,15 @@ class AgentConfig:
     net_arch: list[int] = checked(factory=lambda: [256, 256], check=each(at_least(1)))
     #: The critics' hidden layers, where they differ from the actor's (None: ``net_arch``).
     critic_arch: list[int] | None = checked(None, or_null(each(at_least(1))))
+    #: SAC's critics with DroQ's dropout at this rate and layer normalisation
+    #: (`armexp.agents.droq`); null: SB3's plain critics. SAC only, with ``gradients=autograd``.
+    critic_dropout: float | None = checked(
+        None,
+        Check(
+            lambda v: v is None or (isinstance(v, int | float) and 0 < v < 1),
+            "a rate in (0, 1), or null",
+        ),
+    )
     #: Parallel environments (SB3 VecEnv); ``vec_env`` dummy = in process, subproc = processes.
     n_envs: int = checked(1, at_least(1))
     vec_env: str = checked("dummy", one_of("dummy", "subproc"))
