@@ -78,6 +78,7 @@ def test_it_trains_saves_and_loads_with_its_rate(tmp_path: Path) -> None:
     model.save(tmp_path / "m.zip")
     cfg = compose_config([*SMALL, "agent.gradients=autograd", "agent.critic_dropout=0.02"])
     loaded = load_agent(str(tmp_path / "m.zip"), None, cfg.agent)
+    assert isinstance(loaded, ResumableSAC)
     assert isinstance(loaded.policy, DroQPolicy) and loaded.policy.critic_dropout == 0.02
     for ours, theirs in zip(model.critic.state_dict().values(),
                             loaded.critic.state_dict().values(), strict=True):  # fmt: skip
