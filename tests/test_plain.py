@@ -26,7 +26,8 @@ NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red", "
                   "crossq_plain_red_n10", "sac_plain_red_n10_sil",
                   "sac_plain_red_n10_count", "sac_plain_red_n10_g998",
                   "sac_plain_guard", "sac_plain_guard_g996",
-                  "crossq_plain_guard_g996", "crossq_plain_guard_g996_missed"]  # fmt: skip
+                  "crossq_plain_guard_g996", "crossq_plain_guard_g996_missed",
+                  "crossq_plain_guard_g998_utd1"]  # fmt: skip
 #: Small enough for seconds: tiny networks and batches, 100-step episodes, 300 steps. The
 #: eager update, because compiling the update takes a minute (tests/test_compiled_update.py
 #: covers it).
@@ -79,13 +80,15 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
     # returns, crossq_plain_red_n10 that with CrossQ's own (eager) update, the _sil and _count
     # presets and sac_plain_guard that with one more aid each, _g998 that with gamma 0.998,
     # sac_plain_guard_g996 the guarded one at gamma 0.996, crossq_plain_guard_g996 that with
-    # CrossQ, crossq_plain_guard_g996_missed that with the missed_targets aid; the others carry
+    # CrossQ, crossq_plain_guard_g996_missed that with the missed_targets aid,
+    # crossq_plain_guard_g998_utd1 that at gamma 0.998 and one update per step; the others carry
     # no aid.
     assert with_aids == {"sac_plain_red", "sac_plain_red_n10", "crossq_plain_red_n10",
                          "sac_plain_red_n10_sil", "sac_plain_red_n10_count",
                          "sac_plain_red_n10_g998", "sac_plain_guard",
                          "sac_plain_guard_g996", "crossq_plain_guard_g996",
-                         "crossq_plain_guard_g996_missed"}  # fmt: skip
+                         "crossq_plain_guard_g996_missed",
+                         "crossq_plain_guard_g998_utd1"}  # fmt: skip
     n10 = compose_config(["agent=sac_plain_red_n10"]).agent
     for preset, aid in (("sac_plain_red_n10_sil", "self_imitation"),
                         ("sac_plain_red_n10_count", "count_bonus"),
@@ -104,6 +107,12 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
     assert {k for k in crossq if k not in ("name", "aids") and missed[k] != crossq[k]} == set()
     assert list(missed.aids) == [*crossq.aids, "missed_targets"]
     assert (missed.aids.missed_targets.share, missed.aids.missed_targets.memory) == (0.25, 32)
+    utd1 = compose_config(["agent=crossq_plain_guard_g998_utd1"]).agent
+    assert {k for k in crossq if k != "name" and utd1[k] != crossq[k]} == {
+        "gamma",
+        "gradient_steps",
+    }
+    assert (utd1.gamma, utd1.gradient_steps, utd1.n_envs) == (0.998, 8, 8)
     plain = compose_config(["agent=sac_plain"]).agent
     for preset, changed in (
         ("sac_plain_red", set()),
