@@ -37,6 +37,7 @@ TABLE_II_OPEN: dict[str, Any] = {
     "gradients": "autograd",
     "ent_coef": "auto",
     "target_entropy": None,
+    "critic_dropout": None,
 }
 #: Table III (the proposed control), per task: target time s, target error "cm", tracking error
 #: "cm", max torque N·m, "optimization time" s.

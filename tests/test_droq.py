@@ -106,3 +106,21 @@ def test_a_rate_the_update_cannot_take_is_one_sentence_and_no_run(
     overrides: list[str], said: str, runs_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert _refused(overrides, runs_dir, capsys) == f"armexp train: {said}"
+
+
+def test_table_ii_lists_the_dropout_as_a_change_left_open() -> None:
+    from typing import Any, cast
+
+    from omegaconf import OmegaConf
+
+    from armexp.report.tables import table_two
+
+    def changed(*overrides: str) -> str:
+        cfg = OmegaConf.to_container(compose_config(["agent=sac_plain", *overrides]), resolve=True)
+        shown = table_two(cast(dict[str, Any], cfg)).shown
+        return dict(zip(shown["Parameter"], shown["Value"], strict=True))["Changed from Table II"]
+
+    assert "critic dropout (DroQ) – → 0.01" in changed(
+        "agent.critic_dropout=0.01", "agent.gradients=autograd"
+    )
+    assert "critic dropout" not in changed()

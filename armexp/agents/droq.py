@@ -1,12 +1,12 @@
 """DroQ-style critics for SAC (``agent.critic_dropout``): dropout and layer normalisation in
 each Q-network (Hiraoka et al., "Dropout Q-functions for doubly efficient reinforcement
-learning", ICLR 2022, §3).
+learning", ICLR 2022).
 
-Each hidden layer of a critic becomes Linear → Dropout(p) → LayerNorm → ReLU, the order of the
-paper's Fig. 2; the actor is SB3's. Dropout acts whenever the critics are evaluated for the
-update (the current Q of eq. 2, the target Q of eq. 3 and the actor's loss), as in the paper's
-implementation, so the target critics are kept in training mode as well; SB3 keeps them in
-evaluation mode, which would turn their dropout off. DroQ pairs these critics with many
+Each hidden layer of a critic becomes Linear → Dropout(p) → LayerNorm → ReLU, the paper's
+order; the actor is SB3's. Dropout acts whenever the critics are evaluated for the
+update (the current Q, the target Q and the actor's loss), as Stable Baselines Jax's DroQ
+does, so the target critics are kept in training mode as well; SB3 keeps them in evaluation
+mode, which would turn their dropout off. DroQ pairs these critics with many
 updates per environment step; here that is ``agent.gradient_steps`` as for any SAC preset.
 
 SB3 has no such critic; it is SB3's `ContinuousCritic` with its Q-networks built again, so
@@ -62,7 +62,7 @@ class DroQPolicy(SACPolicy):
     def __init__(self, *args: Any, critic_dropout: float = 0.01, **kwargs: Any) -> None:
         self.critic_dropout = float(critic_dropout)
         super().__init__(*args, **kwargs)
-        self.critic_target.set_training_mode(True)  # dropout in the target Q (eq. 3) as well
+        self.critic_target.set_training_mode(True)  # dropout in the target Q as well
 
     def make_critic(
         self, features_extractor: BaseFeaturesExtractor | None = None

@@ -131,7 +131,8 @@ _PRINTED = {"batch_size": "batch size", "tau": "tau", "buffer_size": "buffer",
 _OPEN = {"n_envs": "parallel environments", "n_steps": "n-step returns",
          "net_arch": "hidden layers", "critic_arch": "critic layers",
          "gradients": "gradients", "ent_coef": "entropy coefficient",
-         "target_entropy": "entropy target"}  # fmt: skip
+         "target_entropy": "entropy target",
+         "critic_dropout": "critic dropout (DroQ)"}  # fmt: skip
 
 
 def changes(train_cfg: dict[str, Any], info: AgentInfo) -> str:
