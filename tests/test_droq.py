@@ -19,6 +19,7 @@ from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from tests.test_algorithms import SMALL, _refused
+from tests.test_sac import _table_two
 
 
 def _sac(*overrides: str) -> ResumableSAC:
@@ -109,18 +110,7 @@ def test_a_rate_the_update_cannot_take_is_one_sentence_and_no_run(
 
 
 def test_table_ii_lists_the_dropout_as_a_change_left_open() -> None:
-    from typing import Any, cast
-
-    from omegaconf import OmegaConf
-
-    from armexp.report.tables import table_two
-
-    def changed(*overrides: str) -> str:
-        cfg = OmegaConf.to_container(compose_config(["agent=sac_plain", *overrides]), resolve=True)
-        shown = table_two(cast(dict[str, Any], cfg)).shown
-        return dict(zip(shown["Parameter"], shown["Value"], strict=True))["Changed from Table II"]
-
-    assert "critic dropout (DroQ) – → 0.01" in changed(
-        "agent.critic_dropout=0.01", "agent.gradients=autograd"
-    )
-    assert "critic dropout" not in changed()
+    row, plain = "Changed from Table II", "agent=sac_plain"
+    dropout = _table_two(row, plain, "agent.critic_dropout=0.01", "agent.gradients=autograd")
+    assert "critic dropout (DroQ) – → 0.01" in dropout
+    assert "critic dropout" not in _table_two(row, plain)
