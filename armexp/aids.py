@@ -162,10 +162,34 @@ LIMIT_GUARD = AidDeclaration(
     ),
 )  # fmt: skip
 
+
+def _late_phase_text(a: Mapping[str, Any]) -> str:
+    changes = [
+        *([f"γ {number_arg(a, 'gamma'):g}"] if a.get("gamma") is not None else []),
+        *([f"{int(number_arg(a, 'gradient_steps'))} gradient steps per call"]
+          if a.get("gradient_steps") is not None else []),
+    ]  # fmt: skip
+    return f"from {number_arg(a, 'at') * 100:g} % of the budget on, {' and '.join(changes)}"
+
+
+LATE_PHASE = AidDeclaration(
+    "late_phase", "armexp.agents.late_phase.LatePhase", False, "late phase",
+    _late_phase_text,
+    OFF_POLICY,  # it sets the discount of a replay buffer's samples and the updates per call
+    lambda agent: next((
+        f"agent.aids.{key}: self-imitation takes its returns at the discount training starts "
+        f"with, and the late phase changes it; remove one of the two (~agent.aids.{key} or "
+        "~agent.aids.late_phase)"
+        for key, aid in (agent.get("aids") or {}).items()
+        if key == SELF_IMITATION.name
+        or (isinstance(aid, Mapping) and aid.get("_target_") == SELF_IMITATION.target)
+    ), None),
+)  # fmt: skip
+
 #: Every aid, in the order the presets list them.
 AIDS = (DEMONSTRATIONS, CLONING, PRETRAINING, EXPERT, AVERAGING, CURRICULUM, MISSED_TARGETS,
         RANDOM_STARTS, HER, COLOURED_NOISE, SELF_IMITATION, COUNT_BONUS,
-        LIMIT_GUARD)  # fmt: skip
+        LIMIT_GUARD, LATE_PHASE)  # fmt: skip
 
 
 #: The guard's margin when its config gives none (rad): above the tracking error of the tuned

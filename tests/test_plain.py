@@ -27,7 +27,7 @@ NON_PRIVILEGED = ["sac_paper", "sac_paper_fast", "sac_plain", "sac_plain_red", "
                   "sac_plain_red_n10_count", "sac_plain_red_n10_g998",
                   "sac_plain_guard", "sac_plain_guard_g996",
                   "crossq_plain_guard_g996", "crossq_plain_guard_g996_missed",
-                  "crossq_plain_guard_g998_utd1"]  # fmt: skip
+                  "crossq_plain_guard_g998_utd1", "crossq_plain_guard_late"]  # fmt: skip
 #: Small enough for seconds: tiny networks and batches, 100-step episodes, 300 steps. The
 #: eager update, because compiling the update takes a minute (tests/test_compiled_update.py
 #: covers it).
@@ -81,14 +81,15 @@ def test_the_non_privileged_presets_are_marked_and_carry_only_unprivileged_aids(
     # presets and sac_plain_guard that with one more aid each, _g998 that with gamma 0.998,
     # sac_plain_guard_g996 the guarded one at gamma 0.996, crossq_plain_guard_g996 that with
     # CrossQ, crossq_plain_guard_g996_missed that with the missed_targets aid,
-    # crossq_plain_guard_g998_utd1 that at gamma 0.998 and one update per step; the others carry
+    # crossq_plain_guard_g998_utd1 that at gamma 0.998 and one update per step,
+    # crossq_plain_guard_late the missed_targets one with the late_phase aid; the others carry
     # no aid.
     assert with_aids == {"sac_plain_red", "sac_plain_red_n10", "crossq_plain_red_n10",
                          "sac_plain_red_n10_sil", "sac_plain_red_n10_count",
                          "sac_plain_red_n10_g998", "sac_plain_guard",
                          "sac_plain_guard_g996", "crossq_plain_guard_g996",
                          "crossq_plain_guard_g996_missed",
-                         "crossq_plain_guard_g998_utd1"}  # fmt: skip
+                         "crossq_plain_guard_g998_utd1", "crossq_plain_guard_late"}  # fmt: skip
     n10 = compose_config(["agent=sac_plain_red_n10"]).agent
     for preset, aid in (("sac_plain_red_n10_sil", "self_imitation"),
                         ("sac_plain_red_n10_count", "count_bonus"),
@@ -144,7 +145,7 @@ def test_a_privileged_aid_in_a_non_privileged_preset_is_one_sentence_and_no_run(
     assert f"agent.aids.{aid.name} is not allowed with agent.privileged=false" in err
     without = (
         "(averaging, curriculum, missed_targets, random_starts, her, coloured_noise, "
-        "self_imitation, count_bonus, limit_guard)"
+        "self_imitation, count_bonus, limit_guard, late_phase)"
     )
     assert f"a non-privileged preset takes only aids without it {without}" in err
     assert not (runs_dir / "mlflow.db").exists() or not stage_runs(runs_dir, "train")

@@ -520,6 +520,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
                 aids.SELF_IMITATION,
                 aids.COUNT_BONUS,
                 aids.LIMIT_GUARD,
+                aids.LATE_PHASE,
             )
         }, preset
     for declaration in aids.AIDS:
@@ -531,7 +532,7 @@ def test_each_aid_is_declared_once_and_its_add_on_and_the_presets_point_at_it() 
         "demonstrations": True, "cloning": True, "pretraining": True, "expert": True,
         "averaging": False, "curriculum": False, "missed_targets": False, "random_starts": False,
         "her": False, "coloured_noise": False, "self_imitation": False, "count_bonus": False,
-        "limit_guard": False,
+        "limit_guard": False, "late_phase": False,
     }  # fmt: skip
     assert aids.declared("armexp.agents.expert.ExpertLabels") is None
     assert aids.privileged_modules() == (
