@@ -68,7 +68,8 @@ class SwitchAt(BaseCallback):
 class LatePhase(TrainingAddOn):
     """From the share ``at`` of the budget on, discount ``gamma`` and ``gradient_steps`` updates
     per call (either None: the preset's own); before it, the preset's (module doc).
-    ``final/late_phase_step`` is the environment step the switch came at (−1: never)."""
+    ``final/late_phase_step`` is the environment step the switch came at (−1: never; in a run
+    resumed past ``at``, the step it resumed at)."""
 
     declaration = aids.LATE_PHASE
 
