@@ -54,6 +54,16 @@ class AidDeclaration:
     conflicts: Callable[[Mapping[str, Any]], str | None] = lambda agent: None
 
 
+def listed_as(agent: Mapping[str, Any], aid: AidDeclaration) -> list[str]:
+    """The keys of ``agent.aids`` that hold ``aid``: under its own name, or under any key with
+    its ``_target_``."""
+    return [
+        key
+        for key, spec in (agent.get("aids") or {}).items()
+        if key == aid.name or (isinstance(spec, Mapping) and spec.get("_target_") == aid.target)
+    ]
+
+
 DEMONSTRATIONS = AidDeclaration(
     "demonstrations", "armexp.agents.demonstrations.PlannerDemonstrations", True,
     "demonstrations",
@@ -149,8 +159,7 @@ COUNT_BONUS = AidDeclaration(
         f"agent.aids.{key}: HER recomputes the rewards of the samples it relabels with the "
         "environment's own function, so they would lose the bonus and the rest keep it; "
         f"remove one of the two (~agent.aids.{key} or ~agent.aids.count_bonus)"
-        for key, aid in (agent.get("aids") or {}).items()
-        if key == HER.name or (isinstance(aid, Mapping) and aid.get("_target_") == HER.target)
+        for key in listed_as(agent, HER)
     ), None),
 )  # fmt: skip
 
@@ -180,9 +189,7 @@ LATE_PHASE = AidDeclaration(
         f"agent.aids.{key}: self-imitation takes its returns at the discount training starts "
         f"with, and the late phase changes it; remove one of the two (~agent.aids.{key} or "
         "~agent.aids.late_phase)"
-        for key, aid in (agent.get("aids") or {}).items()
-        if key == SELF_IMITATION.name
-        or (isinstance(aid, Mapping) and aid.get("_target_") == SELF_IMITATION.target)
+        for key in listed_as(agent, SELF_IMITATION)
     ), None),
 )  # fmt: skip
 
