@@ -9,11 +9,13 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig
 
 from armexp.cli import main
 from armexp.tracking import liveness
@@ -201,3 +203,40 @@ def test_a_run_closed_for_dead_that_goes_on_to_finish_keeps_no_error_tag(tmp_pat
     failed = client.create_run(exp.experiment_id).info.run_id
     close_trial(client, failed, "FAIL", {}, None, "ValueError: boom")
     assert client.get_run(failed).data.tags["armexp.error"] == "ValueError: boom"
+
+
+def test_a_resumed_run_is_never_running_under_its_dead_process(
+    compose: Callable[..., DictConfig], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Another command that looks for orphans just as a resume reopens its run finds it under the
+    resuming process, not the dead one (seen: of two resumes started in the same second, the
+    second closed the first's run as FAILED while it trained on)."""
+    import mlflow
+
+    from armexp.tracking import stage_runs
+    from armexp.tracking.store import store_uri
+
+    cfg = compose()
+    with pytest.raises(KeyboardInterrupt), stage_runs.stage_run(cfg, "train") as run:
+        raise KeyboardInterrupt
+    run_id = run.info.run_id
+    client = MlflowClient(store_uri(cfg))
+    finished = subprocess.Popen([sys.executable, "-c", "input()"], stdin=subprocess.PIPE)
+    dead = f"{liveness.socket.gethostname()}:{finished.pid}:{liveness._process_start(finished.pid)}"
+    finished.communicate(b"\n")
+    client.set_tag(run_id, PROCESS_TAG, dead)
+    assert liveness.process_gone(dead)
+
+    closed: list[str] = []
+    start_run = mlflow.start_run
+
+    def start_run_then_look_for_orphans(*args: Any, **kwargs: Any) -> Any:
+        active = start_run(*args, **kwargs)
+        closed.extend(close_orphans(client, active.info.experiment_id))
+        return active
+
+    monkeypatch.setattr(mlflow, "start_run", start_run_then_look_for_orphans)
+    with stage_runs.stage_run(cfg, "train", resume_run_id=run_id):
+        assert client.get_run(run_id).data.tags[PROCESS_TAG] == liveness.process_identity()
+    assert closed == []
+    assert client.get_run(run_id).info.status == "FINISHED"

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import mlflow
+from mlflow.entities import RunTag
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
@@ -198,8 +199,13 @@ def stage_run(
     # run (a Ray or SLURM worker, a notebook) would log into that run.
     os.environ.pop("MLFLOW_RUN_ID", None)
     if resume_run_id:
+        # This process's tags go on while the run is still ended: start_run marks it RUNNING,
+        # and a command starting meanwhile would find it RUNNING under its old, dead process
+        # and close it as an orphan (`close_orphans`).
+        client = MlflowClient(store_uri(cfg))
+        resumed = [RunTag(k, v) for k, v in tags.items() if k != STAGE_TAG]
+        retry(lambda: client.log_batch(resume_run_id, tags=resumed))
         run = retry(lambda: mlflow.start_run(run_id=resume_run_id, nested=bool(parent_run_id)))
-        mlflow.set_tags({k: v for k, v in tags.items() if k != STAGE_TAG})
     else:
         name = run_name or run_names.run_name(cfg, stage, tags)
         run = retry(
