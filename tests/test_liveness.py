@@ -143,8 +143,7 @@ def test_a_stopped_process_on_this_host_keeps_its_run_however_long_it_is_silent(
     sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
     try:
         os.kill(sleeper.pid, signal.SIGSTOP)
-        start = Path(f"/proc/{sleeper.pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
-        identity = f"{liveness.socket.gethostname()}:{sleeper.pid}:{start}"
+        identity = liveness.process_identity(sleeper.pid)
         runs = tmp_path / "runs"
         assert main(["simulate", "scenario=hold", "scenario.duration=0.05",
                      f"tracking.runs_dir={runs}"]) == 0  # fmt: skip
@@ -222,7 +221,7 @@ def test_a_resumed_run_is_never_running_under_its_dead_process(
     run_id = run.info.run_id
     client = MlflowClient(store_uri(cfg))
     finished = subprocess.Popen([sys.executable, "-c", "input()"], stdin=subprocess.PIPE)
-    dead = f"{liveness.socket.gethostname()}:{finished.pid}:{liveness._process_start(finished.pid)}"
+    dead = liveness.process_identity(finished.pid)
     finished.communicate(b"\n")
     client.set_tag(run_id, PROCESS_TAG, dead)
     assert liveness.process_gone(dead)

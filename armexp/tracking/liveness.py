@@ -73,9 +73,10 @@ def _process_start(pid: int) -> str | None:
     return stat.rsplit(")", 1)[1].split()[19]  # field 22; the name in (…) may hold spaces
 
 
-def process_identity() -> str:
-    """This process as ``host:pid:start`` (the `PROCESS_TAG` value)."""
-    pid = os.getpid()
+def process_identity(pid: int | None = None) -> str:
+    """Process ``pid`` of this host (this process when None) as ``host:pid:start``, the
+    `PROCESS_TAG` value."""
+    pid = os.getpid() if pid is None else pid
     return f"{socket.gethostname()}:{pid}:{_process_start(pid) or ''}"
 
 
