@@ -14,6 +14,7 @@ from armexp.report.seed_figures import (
     PROFILE_COLUMNS,
     curve_band,
     learning_curves_ci,
+    legend_label,
     performance_profiles,
     profile_curves,
 )
@@ -215,6 +216,27 @@ def test_performance_profiles_figure() -> None:
         assert left.get_title() == "held-out success" and right.get_title() == "tracking error"
     finally:
         plt.close(fig)
+
+
+def test_performance_profiles_legend_names_preset_and_controller_only() -> None:
+    described = (
+        "crossq_plain_guard_late (learning aids without privileged knowledge: guard, late phase)"
+    )
+    episodes = _episodes()
+    episodes["agent"] = described
+    fig = performance_profiles(episodes, n_boot=N_BOOT)
+    assert fig is not None
+    try:
+        legend = fig.axes[0].get_legend()
+        assert legend is not None
+        assert [t.get_text() for t in legend.get_texts()] == [
+            "crossq_plain_guard_late, adaptive",
+            "crossq_plain_guard_late, pid",
+        ]
+    finally:
+        plt.close(fig)
+    assert legend_label("sac_paper_fast (Table II, 8 envs), pid_itae") == "sac_paper_fast, pid_itae"
+    assert legend_label("sac, adaptive") == "sac, adaptive"
 
 
 def test_performance_profiles_none_without_held_out_rows() -> None:

@@ -174,6 +174,14 @@ def profile_curves(
     return out
 
 
+def legend_label(key: str) -> str:
+    """A series key ``"<agent label>, <controller>"`` as a legend entry: the agent label's
+    parenthesised description of its aids (the tables keep it) dropped, so that the legend fits
+    beside the panels' width."""
+    agent, _, controller = key.rpartition(", ")
+    return f"{agent.split(' (', 1)[0]}, {controller}" if agent else key
+
+
 def performance_profiles(episodes: pd.DataFrame, n_boot: int = 2000) -> Figure | None:
     """Two panels of :func:`profile_curves`: held-out success (left) and tip tracking error
     (right, log τ), one colour per series, adaptive solid and PID dashed; None without held-out
@@ -188,7 +196,7 @@ def performance_profiles(episodes: pd.DataFrame, n_boot: int = 2000) -> Figure |
         for ax, frame in ((left, c["success"]), (right, c["tracking"])):
             if frame.empty:
                 continue
-            ax.plot(frame["tau"], frame["fraction"], style, color=color, label=key)
+            ax.plot(frame["tau"], frame["fraction"], style, color=color, label=legend_label(key))
             _band(ax, frame["tau"], frame["low"], frame["high"], color)
     left.set_title("held-out success")
     left.set_xlabel("success-rate threshold τ")
