@@ -14,9 +14,9 @@ from armexp.report.seed_figures import (
     PROFILE_COLUMNS,
     curve_band,
     learning_curves_ci,
-    legend_label,
     performance_profiles,
     profile_curves,
+    series_names,
 )
 
 N_BOOT = 300
@@ -224,6 +224,7 @@ def test_performance_profiles_legend_names_preset_and_controller_only() -> None:
     )
     episodes = _episodes()
     episodes["agent"] = described
+    episodes["agent_preset"] = "crossq_plain_guard_late"
     fig = performance_profiles(episodes, n_boot=N_BOOT)
     assert fig is not None
     try:
@@ -235,8 +236,13 @@ def test_performance_profiles_legend_names_preset_and_controller_only() -> None:
         ]
     finally:
         plt.close(fig)
-    assert legend_label("sac_paper_fast (Table II, 8 envs), pid_itae") == "sac_paper_fast, pid_itae"
-    assert legend_label("sac, adaptive") == "sac, adaptive"
+    # Two agents of one preset (a study's tuned and paper gains) keep distinct entries.
+    other = _episodes()
+    other["agent"] = described + ", paper gains"
+    other["agent_preset"] = "crossq_plain_guard_late"
+    both = pd.concat([episodes, other], ignore_index=True)
+    entries = set(series_names(both).values())
+    assert len(entries) == 4
 
 
 def test_performance_profiles_none_without_held_out_rows() -> None:

@@ -22,6 +22,7 @@ import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from armexp.report import episodes as episode_tables
 from armexp.report import stats
 
 BAND_COLUMNS = ["step", "iqm", "low", "high", "runs"]
@@ -174,12 +175,19 @@ def profile_curves(
     return out
 
 
-def legend_label(key: str) -> str:
-    """A series key ``"<agent label>, <controller>"`` as a legend entry: the agent label's
-    parenthesised description of its aids (the tables keep it) dropped, so that the legend fits
-    beside the panels' width."""
-    agent, _, controller = key.rpartition(", ")
-    return f"{agent.split(' (', 1)[0]}, {controller}" if agent else key
+def series_names(episodes: pd.DataFrame) -> dict[str, str]:
+    """Legend entries of :func:`profile_curves`' series keys: the agent by its short name
+    (`armexp.report.episodes.agent_names`; with one agent, its preset) rather than its label,
+    whose description of the agent's aids would widen the legend past the panels."""
+    held = _held_out(episodes)
+    if held.empty or "agent" not in held.columns:
+        return {}
+    short = episode_tables.agent_names(held)
+    names = {}
+    for (agent, controller), g in held.groupby(["agent", "controller"], sort=True):
+        name = short.get(agent) or str(g.iloc[0].get("agent_preset", agent))
+        names[f"{agent}, {controller}"] = f"{name}, {controller}"
+    return names
 
 
 def performance_profiles(episodes: pd.DataFrame, n_boot: int = 2000) -> Figure | None:
@@ -189,6 +197,7 @@ def performance_profiles(episodes: pd.DataFrame, n_boot: int = 2000) -> Figure |
     curves = profile_curves(episodes, n_boot=n_boot)
     if not curves:
         return None
+    names = series_names(episodes)
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     for i, (key, c) in enumerate(curves.items()):
         color = f"C{i}"
@@ -196,7 +205,7 @@ def performance_profiles(episodes: pd.DataFrame, n_boot: int = 2000) -> Figure |
         for ax, frame in ((left, c["success"]), (right, c["tracking"])):
             if frame.empty:
                 continue
-            ax.plot(frame["tau"], frame["fraction"], style, color=color, label=legend_label(key))
+            ax.plot(frame["tau"], frame["fraction"], style, color=color, label=names.get(key, key))
             _band(ax, frame["tau"], frame["low"], frame["high"], color)
     left.set_title("held-out success")
     left.set_xlabel("success-rate threshold τ")
