@@ -20,9 +20,7 @@ import numpy as np
 from pink import ColoredNoiseProcess
 
 from armexp.envs.factory import make_reach
-
-#: The paper's adaptive gains (conf/controller/gains/paper.yaml).
-PAPER = {"a0": 668.0, "a1": 552.0, "b1": 1.8, "c1": 0.001, "r1": 0.69}
+from armexp.paper import GAINS as PAPER
 
 
 def actions(kind: str, rng: np.random.Generator, steps: int) -> np.ndarray:

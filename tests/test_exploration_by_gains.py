@@ -9,6 +9,8 @@ from types import ModuleType
 
 import numpy as np
 
+from armexp.paper import GAINS
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "exploration_by_gains.py"
 
 
@@ -32,7 +34,7 @@ def test_red_noise_actions_are_correlated_and_within_the_box() -> None:
 
 def test_the_same_actions_end_the_same_way_under_nearby_gains() -> None:
     script = _script()
-    paper = script.PAPER
+    paper = GAINS
     stiffer = {**paper, "a0": paper["a0"] * 1.5}
     ends, errors = script.explore(paper, "red", 3)
     ends_stiffer, errors_stiffer = script.explore(stiffer, "red", 3)
