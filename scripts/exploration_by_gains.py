@@ -1,26 +1,41 @@
-"""What random exploration meets under two sets of adaptive gains: episodes of uniform random
-actions and of red noise (β 2, `pink.ColoredNoiseProcess`, as the `coloured_noise` aid draws)
-through the real environment (the paper arm, the five obstacles, Table I's reward), the same
-action sequences under the paper's gains and under the gains given, with how the episodes ended
-and the joint tracking error max|q − q_d| after each action.
+"""What random exploration, or a trained policy, meets under two sets of adaptive gains:
+episodes of uniform random actions and of red noise (β 2, `pink.ColoredNoiseProcess`, as the
+`coloured_noise` aid draws), or of a train run's policy, through the real environment (the paper
+arm, the five obstacles, Table I's reward), the same episodes under the paper's gains and under
+the gains given, with how the episodes ended and the joint tracking error max|q − q_d| after
+each action.
 
     python scripts/exploration_by_gains.py --gains 58.02 3192.6 817.5 3.644e-5 1.0
+    python scripts/exploration_by_gains.py --gains 58.02 3199.9 284.3 1e-6 1.0 --policy FOLDER
 
-The gains are the adaptive law's a0 a1 b1 c1 r1 (a tune run's `gains.yaml`). Used for the study's
-seed 1000, whose training stalled under its tuned gains while the same seed learnt under the
-paper's (docs/plain_agent.md, "On the study's seed 1000").
+The gains are the adaptive law's a0 a1 b1 c1 r1 (a tune run's `gains.yaml`). ``--policy`` takes a
+folder holding a train run's `config.yaml` and a model (`checkpoint/model.zip` or
+`model/model.zip`), as `mlflow artifacts download -r <run id> -d FOLDER` writes them; the policy
+acts on the run's own environment (its guard included) and training's target draw, deterministic
+and sampled. Used for the study's seeds 1000 and 1001, whose trainings trailed under their tuned
+gains while the same seeds learnt under the paper's (docs/plain_agent.md, "On the study's seed
+1000").
 """
 
 from __future__ import annotations
 
 import argparse
 from collections import Counter
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
 from pink import ColoredNoiseProcess
 
-from armexp.envs.factory import make_reach
+from armexp.agents.factory import load_agent
+from armexp.envs.factory import make_reach, settings_from_config
+from armexp.envs.reach import ReachEnv
 from armexp.paper import GAINS as PAPER
+
+#: Reset seeds of the policy's episodes: clear of the evaluation's and the checks' draws.
+POLICY_RESET_SEEDS = 50_000
 
 
 def actions(kind: str, rng: np.random.Generator, steps: int) -> np.ndarray:
@@ -50,20 +65,66 @@ def explore(gains: dict[str, float], kind: str, episodes: int) -> tuple[Counter[
     return ends, np.asarray(errors)
 
 
+def load_policy(folder: Path) -> tuple[DictConfig, Any]:
+    """A train run's config and model from a folder of its artifacts (the final model if there
+    is one, else the latest checkpoint)."""
+    cfg = OmegaConf.load(folder / "config.yaml")
+    assert isinstance(cfg, DictConfig)
+    model = next(p for p in (folder / "model" / "model.zip", folder / "checkpoint" / "model.zip")
+                 if p.exists())  # fmt: skip
+    return cfg, load_agent(str(model), None, cfg.agent)
+
+
+def run_policy(
+    cfg: DictConfig, model: Any, gains: dict[str, float], episodes: int, deterministic: bool
+) -> tuple[Counter[str], np.ndarray]:
+    """How ``episodes`` episodes of the policy ended under ``gains`` on its run's environment
+    (training's target draw), and the tracking error after each action. Episode ``i`` resets
+    with seed ``POLICY_RESET_SEEDS + i`` and, sampled, draws its actions after
+    ``torch.manual_seed(i)``: the same episodes under any gains but for what the gains change."""
+    env = ReachEnv(settings_from_config(cfg, gains=gains, with_tasks=False))
+    ends: Counter[str] = Counter()
+    errors: list[float] = []
+    for episode in range(episodes):
+        torch.manual_seed(episode)
+        obs, _ = env.reset(seed=POLICY_RESET_SEEDS + episode)
+        info: dict[str, object] = {}
+        for _ in range(env.settings.max_steps):
+            action, _ = model.predict(obs, deterministic=deterministic)
+            obs, _, terminated, truncated, info = env.step(action)
+            errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
+            if terminated or truncated:
+                break
+        ends[str(info["reason"])] += 1
+    return ends, np.asarray(errors)
+
+
+def _print(label: str, name: str, ends: Counter[str], errors: np.ndarray) -> None:
+    median, p99 = np.quantile(errors, [0.5, 0.99]) * 1e3
+    print(
+        f"{label:13s} {name:5s} ends {dict(sorted(ends.items()))} | max|q - q_d| "
+        f"median {median:.2f} mrad, 99th percentile {p99:.2f} mrad"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--gains", type=float, nargs=5, required=True, metavar="A0 A1 B1 C1 R1")
     parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--policy", type=Path, help="a folder of a train run's artifacts")
     args = parser.parse_args()
     given = dict(zip(PAPER, args.gains, strict=True))
+    both = (("paper", PAPER), ("given", given))
+    if args.policy is not None:
+        cfg, model = load_policy(args.policy)
+        for deterministic in (True, False):
+            label = "deterministic" if deterministic else "sampled"
+            for name, gains in both:
+                _print(label, name, *run_policy(cfg, model, gains, args.episodes, deterministic))
+        return
     for kind in ("uniform", "red"):
-        for name, gains in (("paper", PAPER), ("given", given)):
-            ends, errors = explore(gains, kind, args.episodes)
-            median, p99 = np.quantile(errors, [0.5, 0.99]) * 1e3
-            print(
-                f"{kind:7s} {name:5s} ends {dict(sorted(ends.items()))} | max|q - q_d| "
-                f"median {median:.2f} mrad, 99th percentile {p99:.2f} mrad"
-            )
+        for name, gains in both:
+            _print(kind, name, *explore(gains, kind, args.episodes))
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""The diagnostic of docs/plain_agent.md ("On the study's seed 1000"): random exploration under
-two sets of adaptive gains, the same action sequences through the real environment."""
+"""The diagnostic of docs/plain_agent.md ("On the study's seed 1000"): random exploration, and a
+saved policy, under two sets of adaptive gains, the same episodes through the real environment."""
 
 from __future__ import annotations
 
@@ -8,7 +8,12 @@ from pathlib import Path
 from types import ModuleType
 
 import numpy as np
+from omegaconf import OmegaConf
 
+from armexp.agents.factory import build_agent
+from armexp.agents.vec import make_vec_env
+from armexp.config import compose_config
+from armexp.envs.factory import settings_from_config
 from armexp.paper import GAINS
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "exploration_by_gains.py"
@@ -42,3 +47,27 @@ def test_the_same_actions_end_the_same_way_under_nearby_gains() -> None:
     # the adaptive law keeps the joints within a milliradian of the reference either way
     assert 0.0 < errors.max() < 2e-3 and 0.0 < errors_stiffer.max() < 2e-3
     assert not np.array_equal(errors, errors_stiffer)  # the gains did act
+
+
+def test_a_saved_policy_is_loaded_from_its_run_folder_and_run_under_both_gain_sets(
+    tmp_path: Path,
+) -> None:
+    script = _script()
+    overrides = ["controller.gains=paper", "agent=sac_smoke", "agent.net_arch=[16,16]",
+                 "env.max_steps=60"]  # fmt: skip
+    cfg = compose_config(overrides)
+    env = make_vec_env(settings_from_config(cfg, with_tasks=False), 1, "dummy", 0)
+    build_agent(cfg.agent, env, 0).save(tmp_path / "checkpoint" / "model.zip")
+    OmegaConf.save(cfg, tmp_path / "config.yaml")
+    loaded_cfg, model = script.load_policy(tmp_path)
+    assert loaded_cfg.env.max_steps == 60
+    stiffer = {**GAINS, "a0": GAINS["a0"] * 1.5}
+    for deterministic in (True, False):
+        ends, errors = script.run_policy(loaded_cfg, model, GAINS, 3, deterministic)
+        again, _ = script.run_policy(loaded_cfg, model, GAINS, 3, deterministic)
+        ends_stiffer, errors_stiffer = script.run_policy(
+            loaded_cfg, model, stiffer, 3, deterministic
+        )
+        assert sum(ends.values()) == 3 and ends == again  # seeded: the same episodes again
+        assert ends == ends_stiffer
+        assert 0.0 < errors.max() < 2e-3 and not np.array_equal(errors, errors_stiffer)
