@@ -29,6 +29,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from pink import ColoredNoiseProcess
 
+from armexp.agents.callbacks import CHECKPOINT_DIR, MODEL_DIR, MODEL_FILE
 from armexp.agents.factory import load_agent
 from armexp.envs.factory import make_reach, settings_from_config
 from armexp.envs.reach import ReachEnv
@@ -70,8 +71,8 @@ def load_policy(folder: Path) -> tuple[DictConfig, Any]:
     is one, else the latest checkpoint)."""
     cfg = OmegaConf.load(folder / "config.yaml")
     assert isinstance(cfg, DictConfig)
-    model = next(p for p in (folder / "model" / "model.zip", folder / "checkpoint" / "model.zip")
-                 if p.exists())  # fmt: skip
+    saved = (folder / MODEL_DIR / MODEL_FILE, folder / CHECKPOINT_DIR / MODEL_FILE)
+    model = next(path for path in saved if path.exists())
     return cfg, load_agent(str(model), None, cfg.agent)
 
 

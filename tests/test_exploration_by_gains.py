@@ -10,6 +10,7 @@ from types import ModuleType
 import numpy as np
 from omegaconf import OmegaConf
 
+from armexp.agents.callbacks import CHECKPOINT_DIR, MODEL_FILE
 from armexp.agents.factory import build_agent
 from armexp.agents.vec import make_vec_env
 from armexp.config import compose_config
@@ -57,7 +58,7 @@ def test_a_saved_policy_is_loaded_from_its_run_folder_and_run_under_both_gain_se
                  "env.max_steps=60"]  # fmt: skip
     cfg = compose_config(overrides)
     env = make_vec_env(settings_from_config(cfg, with_tasks=False), 1, "dummy", 0)
-    build_agent(cfg.agent, env, 0).save(tmp_path / "checkpoint" / "model.zip")
+    build_agent(cfg.agent, env, 0).save(tmp_path / CHECKPOINT_DIR / MODEL_FILE)
     OmegaConf.save(cfg, tmp_path / "config.yaml")
     loaded_cfg, model = script.load_policy(tmp_path)
     assert loaded_cfg.env.max_steps == 60
