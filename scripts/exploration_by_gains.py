@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -54,16 +55,29 @@ def explore(gains: dict[str, float], kind: str, episodes: int) -> tuple[Counter[
     ends: Counter[str] = Counter()
     errors: list[float] = []
     for episode in range(episodes):
-        env.reset(seed=episode)
         sequence = actions(kind, np.random.default_rng(episode), env.settings.max_steps)
-        info: dict[str, object] = {}
-        for action in sequence:
-            _, _, terminated, truncated, info = env.step(action.astype(np.float32))
-            errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
-            if terminated or truncated:
-                break
-        ends[str(info["reason"])] += 1
+        ends[_play(env, episode, _replay(sequence), errors)] += 1
     return ends, np.asarray(errors)
+
+
+def _replay(sequence: np.ndarray) -> Callable[[np.ndarray, int], np.ndarray]:
+    """The actions of ``sequence`` in order, whatever is observed."""
+    return lambda _obs, step: sequence[step]
+
+
+def _play(
+    env: ReachEnv, seed: int, act: Callable[[np.ndarray, int], np.ndarray], errors: list[float]
+) -> str:
+    """One episode from ``env.reset(seed=seed)``, ``act(observation, step)`` choosing each
+    action; the tracking error after each action is appended to ``errors``. How it ended."""
+    obs, _ = env.reset(seed=seed)
+    info: dict[str, object] = {}
+    for step in range(env.settings.max_steps):
+        obs, _, terminated, truncated, info = env.step(act(obs, step).astype(np.float32))
+        errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
+        if terminated or truncated:
+            break
+    return str(info["reason"])
 
 
 def load_policy(folder: Path) -> tuple[DictConfig, Any]:
@@ -86,17 +100,13 @@ def run_policy(
     env = ReachEnv(settings_from_config(cfg, gains=gains, with_tasks=False))
     ends: Counter[str] = Counter()
     errors: list[float] = []
+
+    def act(obs: np.ndarray, _: int) -> np.ndarray:
+        return model.predict(obs, deterministic=deterministic)[0]
+
     for episode in range(episodes):
         torch.manual_seed(episode)
-        obs, _ = env.reset(seed=POLICY_RESET_SEEDS + episode)
-        info: dict[str, object] = {}
-        for _ in range(env.settings.max_steps):
-            action, _ = model.predict(obs, deterministic=deterministic)
-            obs, _, terminated, truncated, info = env.step(action)
-            errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
-            if terminated or truncated:
-                break
-        ends[str(info["reason"])] += 1
+        ends[_play(env, POLICY_RESET_SEEDS + episode, act, errors)] += 1
     return ends, np.asarray(errors)
 
 
