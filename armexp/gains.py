@@ -2,9 +2,10 @@
 
 A controller's gains are either configured (``controller.gains`` as composed, or the controller's
 per-robot defaults, ``conf/per_robot/<controller>_<robot>.yaml``) or those of a tune run: one given
-by id, or the latest FINISHED tune run with that controller, robot and tuning criterion
-(docs/design.md §5). `resolve` returns them typed (`Gains`: the values in config form, the
-criterion and horizon they were tuned under, the tune run) so callers record their source.
+by id, or the latest FINISHED tune run with that controller, robot and tuning criterion, one of
+the config's ``tuner.seed`` first (docs/design.md §5). `resolve` returns them typed (`Gains`: the
+values in config form, the criterion and horizon they were tuned under, the tune run) so callers
+record their source.
 `train_source` says which of the two train takes, from ``train.gains`` and what the command typed:
 gains typed on a train or pipeline command (``controller.gains=paper``) are trained with.
 
@@ -16,6 +17,7 @@ criterion ``gaing`` (the paper's W) over 0.6 s, or the horizon they logged.
 from __future__ import annotations
 
 import copy
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -37,6 +39,8 @@ CRITERION_PARAM = "tuner.objective.criterion"
 HORIZON_PARAM = "tuner.objective.horizon"
 #: What a tune run without a criterion was tuned under: the paper's W over 0.6 s.
 OLD_CRITERION, OLD_HORIZON = "gaing", 0.6
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -119,13 +123,24 @@ def tuned(
     key: str = "tune_run",
 ) -> Gains:
     """The gains of tune run ``run_id``, or of the latest FINISHED tune run of ``controller`` on
-    ``robot`` under ``criterion``, in ``cfg``'s store. A given run of another controller, robot
-    or criterion is a `ConfigError` naming ``key``."""
+    ``robot`` under ``criterion``, in ``cfg``'s store: of those, one tuned with ``cfg``'s
+    ``tuner.seed`` where one is (`_seeded_run`). A given run of another controller, robot or
+    criterion is a `ConfigError` naming ``key``."""
     match = {"controller.name": controller, "robot.name": robot}
-    run = lookup.find_stage_run(
-        cfg, "tune", run_id=run_id, match=match, key=key,
-        accept=lambda r: run_criterion(r) == criterion, wanted=f"{CRITERION_PARAM}={criterion}",
-    )  # fmt: skip
+    seed = OmegaConf.select(cfg, "tuner.seed")
+    run = None if run_id or seed is None else _seeded_run(cfg, match, criterion, key, seed)
+    if run is None:
+        run = lookup.find_stage_run(
+            cfg, "tune", run_id=run_id, match=match, key=key,
+            accept=lambda r: run_criterion(r) == criterion,
+            wanted=f"{CRITERION_PARAM}={criterion}",
+        )  # fmt: skip
+        if not run_id and seed is not None:
+            log.warning(
+                "%s: no FINISHED tune run of %s with tuner.seed=%s; using the latest, %s "
+                "(tuner.seed=%s); pass %s=<run id> to choose", key, controller, seed,
+                run.info.run_id, run.data.params.get("tuner.seed"), key,
+            )  # fmt: skip
     for param, value in match.items():
         got = run.data.params.get(param)
         if got != value:
@@ -143,6 +158,22 @@ def tuned(
         artifacts.download_artifact(run.info.run_id, "gains.yaml", cfg).read_text()
     )
     return Gains(controller, values, criterion, run_horizon(run), run.info.run_id)
+
+
+def _seeded_run(
+    cfg: DictConfig, match: dict[str, str], criterion: str, key: str, seed: Any
+) -> Run | None:
+    """The latest matching tune run tuned with ``tuner.seed`` ``seed``, or None. A seeded study
+    (``experiment=reproduce``, ``tuner.seed: ${seed}``) tunes every seed into one store, and a
+    stage run by hand at seed 1001 means seed 1001's tune, not the newest of any seed."""
+    try:
+        return lookup.find_stage_run(
+            cfg, "tune", match={**match, "tuner.seed": str(seed)}, key=key,
+            accept=lambda r: run_criterion(r) == criterion,
+            wanted=f"{CRITERION_PARAM}={criterion}",
+        )  # fmt: skip
+    except ConfigError:
+        return None
 
 
 def resolve(

@@ -43,6 +43,34 @@ def test_latest_matching_tune_run_is_found(compose: Callable[..., DictConfig]) -
     ).values == {"a0": 100.0}
 
 
+def test_the_latest_tune_run_of_the_configs_seed_comes_first(
+    compose: Callable[..., DictConfig], caplog: pytest.LogCaptureFixture
+) -> None:
+    # A seeded study tunes every seed into one store; seed 1's eval means seed 1's tune.
+    robot = str(compose().robot.name)
+    first = logged_tune_run(compose("tuner.seed=1"), "a0: 1.0\n")
+    newest = logged_tune_run(compose("tuner.seed=2"), "a0: 2.0\n")
+    criterion = gains.criterion_of(compose())
+    with caplog.at_level("WARNING", logger="armexp.gains"):
+        found = gains.tuned(compose("tuner.seed=1"), "subsystem_adaptive", robot, criterion)
+        assert (found.tune_run, found.values) == (first, {"a0": 1.0})
+        assert gains.tuned(compose("tuner.seed=2"), "subsystem_adaptive", robot,
+                           criterion).tune_run == newest  # fmt: skip
+        assert not caplog.records
+        # No tune of the config's seed: the latest of any seed, and a warning naming it.
+        found = gains.tuned(compose("tuner.seed=3"), "subsystem_adaptive", robot, criterion,
+                            key="eval.tune_runs.adaptive_itae")  # fmt: skip
+    assert found.tune_run == newest
+    assert [r.getMessage() for r in caplog.records] == [
+        "eval.tune_runs.adaptive_itae: no FINISHED tune run of subsystem_adaptive with "
+        f"tuner.seed=3; using the latest, {newest} (tuner.seed=2); pass "
+        "eval.tune_runs.adaptive_itae=<run id> to choose"
+    ]
+    # A given id is taken whatever its seed.
+    assert gains.tuned(compose("tuner.seed=2"), "subsystem_adaptive", robot, criterion,
+                       run_id=first).tune_run == first  # fmt: skip
+
+
 def test_the_latest_run_of_the_criterion_is_found_and_older_runs_are_gaing(
     compose: Callable[..., DictConfig],
 ) -> None:

@@ -107,7 +107,8 @@ class EvalStageConfig:
     #: Also run the policy's adaptive law with adaptation off (b1 = 0, ρ̂ ≡ 0): ``adaptive_off``.
     ablation: bool = True
     #: Baseline gains: ``tuned`` (``tune_runs.<baseline>`` or the latest FINISHED tune run of its
-    #: controller, the policy's robot and its criterion) or ``config`` (each controller's
+    #: controller, the policy's robot and its criterion, the config's ``tuner.seed`` first:
+    #: `armexp.gains.tuned`) or ``config`` (each controller's
     #: configured gains for the policy's robot).
     baseline_gains: str = checked("tuned", one_of("tuned", "config"))
     #: Tune run ids by label: a baseline's, or ``adaptive_<criterion>``'s (the adaptive law tuned
