@@ -16,6 +16,7 @@ criterion ``gaing`` (the paper's W) over 0.6 s, or the horizon they logged.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import math
@@ -124,18 +125,27 @@ def tuned(
 ) -> Gains:
     """The gains of tune run ``run_id``, or of the latest FINISHED tune run of ``controller`` on
     ``robot`` under ``criterion``, in ``cfg``'s store: of those, one tuned with ``cfg``'s
-    ``tuner.seed`` where one is (`_seeded_run`). A given run of another controller, robot or
-    criterion is a `ConfigError` naming ``key``."""
+    ``tuner.seed`` where one is, else the latest of any seed with a warning. A given run of
+    another controller, robot or criterion is a `ConfigError` naming ``key``."""
     match = {"controller.name": controller, "robot.name": robot}
-    seed = OmegaConf.select(cfg, "tuner.seed")
-    run = None if run_id or seed is None else _seeded_run(cfg, match, criterion, key, seed)
-    if run is None:
-        run = lookup.find_stage_run(
-            cfg, "tune", run_id=run_id, match=match, key=key,
+
+    def latest(params: dict[str, str]) -> Run:
+        return lookup.find_stage_run(
+            cfg, "tune", run_id=run_id, match=params, key=key,
             accept=lambda r: run_criterion(r) == criterion,
             wanted=f"{CRITERION_PARAM}={criterion}",
         )  # fmt: skip
-        if not run_id and seed is not None:
+
+    # A seeded study (``experiment=reproduce``: ``tuner.seed: ${seed}``) tunes every seed into one
+    # store; a stage run by hand at seed 1001 means seed 1001's tune, not the newest of any seed.
+    seed = None if run_id else OmegaConf.select(cfg, "tuner.seed")
+    run = None
+    if seed is not None:
+        with contextlib.suppress(ConfigError):
+            run = latest({**match, "tuner.seed": str(seed)})
+    if run is None:
+        run = latest(match)
+        if seed is not None:
             log.warning(
                 "%s: no FINISHED tune run of %s with tuner.seed=%s; using the latest, %s "
                 "(tuner.seed=%s); pass %s=<run id> to choose", key, controller, seed,
@@ -158,22 +168,6 @@ def tuned(
         artifacts.download_artifact(run.info.run_id, "gains.yaml", cfg).read_text()
     )
     return Gains(controller, values, criterion, run_horizon(run), run.info.run_id)
-
-
-def _seeded_run(
-    cfg: DictConfig, match: dict[str, str], criterion: str, key: str, seed: Any
-) -> Run | None:
-    """The latest matching tune run tuned with ``tuner.seed`` ``seed``, or None. A seeded study
-    (``experiment=reproduce``, ``tuner.seed: ${seed}``) tunes every seed into one store, and a
-    stage run by hand at seed 1001 means seed 1001's tune, not the newest of any seed."""
-    try:
-        return lookup.find_stage_run(
-            cfg, "tune", match={**match, "tuner.seed": str(seed)}, key=key,
-            accept=lambda r: run_criterion(r) == criterion,
-            wanted=f"{CRITERION_PARAM}={criterion}",
-        )  # fmt: skip
-    except ConfigError:
-        return None
 
 
 def resolve(
