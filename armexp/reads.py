@@ -117,11 +117,15 @@ def _placeholder(stage: str, key: str) -> str:
 
 @dataclass(frozen=True)
 class Reads:
-    """The config keys a stage reads: ``hashed`` change its result, ``unhashed`` do not."""
+    """The config keys a stage reads: ``hashed`` change its result, ``unhashed`` do not.
+    ``earlier``: the hashed keys of the stage's earlier declarations, newest first; runs made
+    under one carry its digest (`Reads.earlier_digests`), and `armexp.tracking.reuse` takes
+    them where their logged config matches this declaration's hashed keys."""
 
     stage: str
     hashed: tuple[str, ...]
     unhashed: tuple[str, ...] = ()
+    earlier: tuple[tuple[str, ...], ...] = ()
 
     def __post_init__(self) -> None:
         both = set(self.hashed) & set(self.unhashed)
@@ -144,6 +148,10 @@ class Reads:
         """The hash of the hashed keys' resolved values in ``cfg``: equal digests, equal
         inputs."""
         return digest(cfg, self.hashed, self.unhashed)
+
+    def earlier_digests(self, cfg: DictConfig) -> list[str]:
+        """The digests ``cfg`` had under the earlier declarations, newest first."""
+        return [digest(cfg, keys, self.unhashed) for keys in self.earlier]
 
     def view(self, cfg: DictConfig) -> DictConfig:
         """``cfg`` as the stage may read it: declared keys resolved, any other key a placeholder

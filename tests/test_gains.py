@@ -10,8 +10,10 @@ from omegaconf import DictConfig
 
 from armexp import gains
 from armexp.config import ConfigError
+from armexp.stages import evaluate, train
 from armexp.stages.train import controller_gains_for
 from armexp.tracking import stage_runs
+from armexp.tracking.tags import TUNE_RUN_TAG
 from tests.helpers import logged_tune_run
 
 
@@ -69,6 +71,11 @@ def test_the_latest_tune_run_of_the_configs_seed_comes_first(
     # A given id is taken whatever its seed.
     assert gains.tuned(compose("tuner.seed=2"), "subsystem_adaptive", robot, criterion,
                        run_id=first).tune_run == first  # fmt: skip
+    # The same through the views train and eval run on (armexp.reads), which declare tuner.seed.
+    seed_1 = compose("tuner.seed=1")
+    assert controller_gains_for(train.READS.view(seed_1))[1][TUNE_RUN_TAG] == first
+    assert gains.tuned(evaluate.READS.view(seed_1), "subsystem_adaptive", robot,
+                       criterion).tune_run == first  # fmt: skip
 
 
 def test_the_latest_run_of_the_criterion_is_found_and_older_runs_are_gaing(

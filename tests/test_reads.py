@@ -200,6 +200,30 @@ def test_eval_reads_only_what_it_declares(overrides: list[str], chain: Path) -> 
     assert run.data.tags[INPUTS_TAG] == evaluate.READS.digest(cfg)
 
 
+@pytest.mark.long
+def test_a_run_made_under_the_earlier_declaration_is_reused_where_its_config_matches(
+    chain: Path,
+) -> None:
+    """Train hashed ``tuner.seed`` once it chose the default tune run; a run tagged with the
+    digest of the declaration before is reused only where its logged tuner.seed is the config's."""
+    from armexp.config import compose_config
+
+    where = f"tracking.runs_dir={chain}"
+    cfg = compose_config([*SMALL_TRAIN, where])
+    made = stage_runs(chain, "train", newest_first=False)[0]
+    assert made.data.tags[INPUTS_TAG] == train.READS.digest(cfg)
+    client = MlflowClient(store.store_uri(cfg))
+    (earlier,) = train.READS.earlier_digests(cfg)
+    client.set_tag(made.info.run_id, INPUTS_TAG, earlier)  # as the armexp before tagged it
+    try:
+        assert reuse.reusable(cfg, train.READS) == made.info.run_id
+        other_seed = compose_config([*SMALL_TRAIN, "tuner.seed=5", where])
+        assert train.READS.earlier_digests(other_seed) == [earlier]  # the old digest is blind
+        assert reuse.reusable(other_seed, train.READS) is None
+    finally:
+        client.set_tag(made.info.run_id, INPUTS_TAG, train.READS.digest(cfg))
+
+
 # --------------------------------------------------------------------------------- the digest
 def _hash_as_armexp_always_did(cfg: DictConfig, keys: tuple[str, ...]) -> str:
     """The ``armexp.inputs_hash`` of runs made before the declarations, over ``keys``."""
@@ -242,6 +266,8 @@ def test_the_digest_follows_the_inputs_and_nothing_else(
         assert not same(stage, [], ["env.reference=hold"])
     assert not same("train", [], ["train.eval_every=100"])  # the held-out callback's
     assert not same("train", [], ["tuner.objective.criterion=gaing"])  # which tune run
+    assert not same("train", [], ["tuner.seed=3"])  # which tune run, when none is given
+    assert not same("eval", [], ["tuner.seed=3"])
     assert not same("eval", [], ["eval.animations=false"])
     assert not same("eval", [], ["obstacles=none"])
 

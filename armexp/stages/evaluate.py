@@ -62,18 +62,24 @@ from armexp.tracking import artifacts, run_end, stage_runs
 
 #: The perturbed runs of a paper task: (``eval`` key of the offset, metric and file suffix).
 PERTURBATIONS = (("initial_offset", ""), ("large_offset", "_large"))
+#: What the stage hashed before ``tuner.seed`` chose its default tune run (its runs carry
+#: that digest; `armexp.tracking.reuse` still takes them where their config matches).
+_HASHED_BEFORE_TUNER_SEED = (
+    "seed", "eval", "tasks", "robot.name", "obstacles", "controller.name", "controller.gains",
+    "tuner.objective.criterion",
+)  # fmt: skip
 #: What eval reads of the config (`armexp.reads`): ``eval`` (the policy's train run, the labels
 #: and where their gains come from, the convergence runs, what is logged), the targets
 #: (``tasks``) and the seed of the episodes; the train run is looked up by robot and obstacles,
-#: the baselines' tune runs by ``tuner.objective.criterion``, and ``eval.adaptive_gains=config``
-#: (or a baseline's configured gains) reads ``controller.name`` and ``controller.gains``. The
-#: policy's environment is its train run's config, so the ``eval.train_run`` id hashes it. The
-#: progress bar, run name and store are not hashed.
+#: the tune runs by ``tuner.objective.criterion`` and ``tuner.seed``, and
+#: ``eval.adaptive_gains=config`` (or a baseline's configured gains) reads ``controller.name``
+#: and ``controller.gains``. The policy's environment is its train run's config, so the
+#: ``eval.train_run`` id hashes it. The progress bar, run name and store are not hashed.
 READS = Reads(
     "eval",
-    hashed=("seed", "eval", "tasks", "robot.name", "obstacles", "controller.name",
-            "controller.gains", "tuner.objective.criterion"),
+    hashed=(*_HASHED_BEFORE_TUNER_SEED, "tuner.seed"),
     unhashed=("eval.progress", "eval.run_name", "tracking"),
+    earlier=(_HASHED_BEFORE_TUNER_SEED,),
 )  # fmt: skip
 
 

@@ -73,18 +73,24 @@ from armexp.tracking.tags import (
 
 log = logging.getLogger(__name__)
 
+#: What the stage hashed before ``tuner.seed`` chose its default tune run (its runs carry
+#: that digest; `armexp.tracking.reuse` still takes them where their config matches).
+_HASHED_BEFORE_TUNER_SEED = (
+    "seed", "robot", "obstacles", "controller", "env", "agent", "train.gains", "train.tune_run",
+    "train.callbacks", "tuner.objective.criterion",
+)  # fmt: skip
 #: What train reads of the config (`armexp.reads`): the seed, the environment (robot, obstacles,
 #: ``env``; no named tasks: training draws its targets), the controller in the loop and where its
 #: gains come from (``train.gains``, ``train.tune_run``, or the latest tune run under
-#: ``tuner.objective.criterion``), the agent with its aids, and the callbacks. Where it records
-#: (run name, store, checkpoints, logging interval, progress bar), the run it resumes and its
-#: torch threads are not hashed.
+#: ``tuner.objective.criterion``, of ``tuner.seed`` first), the agent with its aids, and the
+#: callbacks. Where it records (run name, store, checkpoints, logging interval, progress bar),
+#: the run it resumes and its torch threads are not hashed.
 READS = Reads(
     "train",
-    hashed=("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
-            "train.tune_run", "train.callbacks", "tuner.objective.criterion"),
+    hashed=(*_HASHED_BEFORE_TUNER_SEED, "tuner.seed"),
     unhashed=("train.run_name", "train.resume", "train.progress", "train.torch_threads",
               "train.checkpoint_every", "train.log_every", "tracking"),
+    earlier=(_HASHED_BEFORE_TUNER_SEED,),
 )  # fmt: skip
 
 

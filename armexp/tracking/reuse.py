@@ -5,12 +5,13 @@ declaration hashes (`armexp.reads.Reads`, ``READS`` in the stage's module: the k
 reads that change its result). A run is reused when its digest equals this config's: its inputs
 match.
 
-Runs made before the declarations carry a digest of a list kept by hand beside the stages
-(`LEGACY_INPUTS`), which left out keys the stages read (tune and simulate read ``env.reference``).
-Such a run is still reused when its digest equals this config's under that list *and* its logged
-params (the flattened resolved config, `armexp.tracking.stage_runs.flatten`) equal this config's
-on every key the declaration hashes, so an old run is taken only where it is the run this config
-would make.
+Runs made under an earlier declaration (``Reads.earlier``: train and eval hashed ``tuner.seed``
+once it chose their default tune run) carry that declaration's digest, and runs made before the
+declarations a digest of a list kept by hand beside the stages (`LEGACY_INPUTS`), which left out
+keys the stages read (tune and simulate read ``env.reference``). Such a run is still reused when
+its digest equals this config's under that earlier list *and* its logged params (the flattened
+resolved config, `armexp.tracking.stage_runs.flatten`) equal this config's on every key the
+declaration hashes, so an old run is taken only where it is the run this config would make.
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def _find(
     accept: Callable[[Run], bool],
 ) -> str | None:
     """The newest run of ``reads.stage`` in ``status`` (an MLflow filter clause; "": any) that
-    ``accept`` takes, by ``cfg``'s digest, else by its legacy digest and params."""
+    ``accept`` takes, by ``cfg``'s digest, else by an earlier or legacy digest and params."""
     exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
     if exp is None:
         return None
@@ -103,11 +104,12 @@ def _find(
     for run in search(current):
         if accept(run):
             return str(run.info.run_id)
+    older = reads.earlier_digests(cfg)
     keys = LEGACY_INPUTS.get(reads.stage)
-    legacy = digest(cfg, keys) if keys else None
-    if legacy is None or legacy == current:
-        return None
-    for run in search(legacy):
-        if accept(run) and params_match(run, cfg, reads):
-            return str(run.info.run_id)
+    if keys:
+        older.append(digest(cfg, keys))
+    for value in dict.fromkeys(d for d in older if d != current):
+        for run in search(value):
+            if accept(run) and params_match(run, cfg, reads):
+                return str(run.info.run_id)
     return None
