@@ -192,11 +192,18 @@ class Progress(BaseCallback):
 
 class PaceLine(BaseCallback):
     """Without a progress bar (logs, captured output): a line every ``every_s`` seconds of
-    training with the steps done, the measured pace since this process started and the ETA
-    of the step budget (or of the time budget, when that ends first)."""
+    training with the steps done, the pace over the last ``window`` lines (since this process
+    started, for the first ones) and the ETA of the step budget at that pace (or of the time
+    budget, when that ends first). A recent pace, not the run's average: a preset's late phase
+    (more updates per step) or a busier machine would otherwise leave the ETA short for hours."""
 
     def __init__(
-        self, total: int, stats: EpisodeStats, seconds: float | None, every_s: float = 60.0
+        self,
+        total: int,
+        stats: EpisodeStats,
+        seconds: float | None,
+        every_s: float = 60.0,
+        window: int = 5,
     ) -> None:
         super().__init__()
         self.total = total
@@ -204,11 +211,14 @@ class PaceLine(BaseCallback):
         self.seconds = seconds
         self.every_s = every_s
         self.lines: list[str] = []
+        #: (wall seconds, steps) at each of the last ``window`` lines, or at the start and the
+        #: lines so far; the pace is measured from the oldest.
+        self.marks: deque[tuple[float, int]] = deque(maxlen=window)
 
     def _on_training_start(self) -> None:
-        self.first_step = self.num_timesteps
-        self.first_wall = self.stats.wall()
-        self.next_at = self.first_wall + self.every_s
+        wall = self.stats.wall()
+        self.marks.append((wall, self.num_timesteps))
+        self.next_at = wall + self.every_s
 
     def _on_step(self) -> bool:
         if self.n_calls % 100 == 0:
@@ -219,7 +229,9 @@ class PaceLine(BaseCallback):
 
     def say(self, wall: float) -> None:
         self.next_at = wall + self.every_s
-        pace = (self.num_timesteps - self.first_step) / max(wall - self.first_wall, 1e-9)
+        since_wall, since_step = self.marks[0]
+        pace = (self.num_timesteps - since_step) / max(wall - since_wall, 1e-9)
+        self.marks.append((wall, self.num_timesteps))
         eta = max(self.total - self.num_timesteps, 0) / pace if pace > 0 else float("inf")
         if self.seconds is not None:
             eta = min(eta, max(self.seconds - wall, 0.0))
