@@ -213,12 +213,12 @@ def test_a_run_made_under_the_earlier_declaration_is_reused_where_its_config_mat
     made = stage_runs(chain, "train", newest_first=False)[0]
     assert made.data.tags[INPUTS_TAG] == train.READS.digest(cfg)
     client = MlflowClient(store.store_uri(cfg))
-    (earlier,) = train.READS.earlier_digests(cfg)
+    earlier = train.READS.earlier_digests(cfg)[0]  # the newest earlier declaration
     client.set_tag(made.info.run_id, INPUTS_TAG, earlier)  # as the armexp before tagged it
     try:
         assert reuse.reusable(cfg, train.READS) == made.info.run_id
         other_seed = compose_config([*SMALL_TRAIN, "tuner.seed=5", where])
-        assert train.READS.earlier_digests(other_seed) == [earlier]  # the old digest is blind
+        assert train.READS.earlier_digests(other_seed)[0] == earlier  # the old digest is blind
         assert reuse.reusable(other_seed, train.READS) is None
     finally:
         client.set_tag(made.info.run_id, INPUTS_TAG, train.READS.digest(cfg))
@@ -240,8 +240,10 @@ def test_the_digest_is_made_as_before_so_earlier_runs_keep_matching(
     compose: Callable[..., DictConfig],
 ) -> None:
     cfg = compose("experiment=reproduce")
-    for stage, keys in reuse.LEGACY_INPUTS.items():
-        assert Reads(stage, keys).digest(cfg) == _hash_as_armexp_always_did(cfg, keys)
+    for module in STAGES.values():
+        reads = module.READS
+        before = reads.earlier[-1]  # the list kept by hand before the declarations
+        assert reads.earlier_digests(cfg)[-1] == _hash_as_armexp_always_did(cfg, before)
 
 
 @pytest.mark.long
@@ -287,10 +289,10 @@ def test_reuse_takes_a_run_with_the_same_inputs_only(
     assert reuse.reusable(compose(*SMALL_TUNE, "env.reference=hold"), tune.READS) is None
     # The same run as an older armexp tagged it.
     client = MlflowClient(store.store_uri(ramp))
-    old = _hash_as_armexp_always_did(ramp, reuse.LEGACY_INPUTS["tune"])
+    old = _hash_as_armexp_always_did(ramp, tune.READS.earlier[-1])
     client.set_tag(made, INPUTS_TAG, old)
     assert reuse.reusable(ramp, tune.READS) == made
     hold = compose(*SMALL_TUNE, "env.reference=hold")
-    assert _hash_as_armexp_always_did(hold, reuse.LEGACY_INPUTS["tune"]) == old  # the old bug
+    assert _hash_as_armexp_always_did(hold, tune.READS.earlier[-1]) == old  # the old bug
     assert reuse.reusable(hold, tune.READS) is None
     assert reuse.reusable(compose(*SMALL_TUNE, "tuner.pa=0.5"), tune.READS) is None

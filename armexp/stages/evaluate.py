@@ -62,6 +62,13 @@ from armexp.tracking import artifacts, run_end, stage_runs
 
 #: The perturbed runs of a paper task: (``eval`` key of the offset, metric and file suffix).
 PERTURBATIONS = (("initial_offset", ""), ("large_offset", "_large"))
+#: What the stage hashed before its reads were declared, a list kept by hand.
+_HASHED_BEFORE_DECLARATIONS = (
+    "seed", "tasks", "eval.train_run", "eval.baselines", "eval.ablation", "eval.baseline_gains",
+    "eval.tune_runs", "eval.adaptive_gains", "controller.gains", "eval.paper_tasks",
+    "eval.deterministic", "eval.initial_offset", "eval.large_offset", "eval.convergence_window",
+    "eval.convergence_tolerance", "tuner.objective.criterion", "tuner.objective.horizon",
+)  # fmt: skip
 #: What the stage hashed before ``tuner.seed`` chose its default tune run (its runs carry
 #: that digest; `armexp.tracking.reuse` still takes them where their config matches).
 _HASHED_BEFORE_TUNER_SEED = (
@@ -79,7 +86,7 @@ READS = Reads(
     "eval",
     hashed=(*_HASHED_BEFORE_TUNER_SEED, "tuner.seed"),
     unhashed=("eval.progress", "eval.run_name", "tracking"),
-    earlier=(_HASHED_BEFORE_TUNER_SEED,),
+    earlier=(_HASHED_BEFORE_TUNER_SEED, _HASHED_BEFORE_DECLARATIONS),
 )  # fmt: skip
 
 

@@ -31,6 +31,7 @@ READS = Reads(
     "simulate",
     hashed=("seed", "robot", "controller", "scenario", "env.reference"),
     unhashed=("simulate.run_name", "tracking"),
+    earlier=(("seed", "robot", "controller", "scenario"),),  # before env.reference was hashed
 )
 
 

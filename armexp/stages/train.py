@@ -73,6 +73,10 @@ from armexp.tracking.tags import (
 
 log = logging.getLogger(__name__)
 
+#: What the stage hashed before its reads were declared, a list kept by hand.
+_HASHED_BEFORE_DECLARATIONS = (
+    "seed", "robot", "obstacles", "controller", "env", "agent", "train.gains", "train.tune_run",
+)  # fmt: skip
 #: What the stage hashed before ``tuner.seed`` chose its default tune run (its runs carry
 #: that digest; `armexp.tracking.reuse` still takes them where their config matches).
 _HASHED_BEFORE_TUNER_SEED = (
@@ -90,7 +94,7 @@ READS = Reads(
     hashed=(*_HASHED_BEFORE_TUNER_SEED, "tuner.seed"),
     unhashed=("train.run_name", "train.resume", "train.progress", "train.torch_threads",
               "train.checkpoint_every", "train.log_every", "tracking"),
-    earlier=(_HASHED_BEFORE_TUNER_SEED,),
+    earlier=(_HASHED_BEFORE_TUNER_SEED, _HASHED_BEFORE_DECLARATIONS),
 )  # fmt: skip
 
 

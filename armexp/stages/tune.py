@@ -61,6 +61,7 @@ READS = Reads(
     "tune",
     hashed=("robot", "controller", "tuner", "env.reference"),
     unhashed=("tune.progress", "tune.run_name", "tracking"),
+    earlier=(("seed", "robot", "controller", "tuner"),),  # before env.reference was hashed
 )
 
 

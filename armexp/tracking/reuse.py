@@ -5,13 +5,13 @@ declaration hashes (`armexp.reads.Reads`, ``READS`` in the stage's module: the k
 reads that change its result). A run is reused when its digest equals this config's: its inputs
 match.
 
-Runs made under an earlier declaration (``Reads.earlier``: train and eval hashed ``tuner.seed``
-once it chose their default tune run) carry that declaration's digest, and runs made before the
-declarations a digest of a list kept by hand beside the stages (`LEGACY_INPUTS`), which left out
-keys the stages read (tune and simulate read ``env.reference``). Such a run is still reused when
-its digest equals this config's under that earlier list *and* its logged params (the flattened
-resolved config, `armexp.tracking.stage_runs.flatten`) equal this config's on every key the
-declaration hashes, so an old run is taken only where it is the run this config would make.
+Runs made under an earlier declaration (``Reads.earlier``: the lists kept by hand before the
+declarations, which left out keys the stages read, such as tune's and simulate's
+``env.reference``; train and eval before they hashed ``tuner.seed``) carry that declaration's
+digest. Such a run is still reused when its digest equals this config's under that earlier list
+*and* its logged params (the flattened resolved config, `armexp.tracking.stage_runs.flatten`)
+equal this config's on every key the declaration hashes, so an old run is taken only where it is
+the run this config would make.
 """
 
 from __future__ import annotations
@@ -22,22 +22,10 @@ from mlflow.entities import Run
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig
 
-from armexp.reads import Reads, digest
+from armexp.reads import Reads
 from armexp.tracking import stage_runs, store
 from armexp.tracking.tags import INPUTS_TAG, STAGE_TAG
 
-#: The keys the ``armexp.inputs_hash`` of runs made before the declarations was a digest of.
-LEGACY_INPUTS: dict[str, tuple[str, ...]] = {
-    "simulate": ("seed", "robot", "controller", "scenario"),
-    "tune": ("seed", "robot", "controller", "tuner"),
-    "train": ("seed", "robot", "obstacles", "controller", "env", "agent", "train.gains",
-              "train.tune_run"),
-    "eval": ("seed", "tasks", "eval.train_run", "eval.baselines", "eval.ablation",
-             "eval.baseline_gains", "eval.tune_runs", "eval.adaptive_gains", "controller.gains",
-             "eval.paper_tasks", "eval.deterministic", "eval.initial_offset", "eval.large_offset",
-             "eval.convergence_window", "eval.convergence_tolerance", "tuner.objective.criterion",
-             "tuner.objective.horizon"),
-}  # fmt: skip
 #: How many of the newest runs with a digest are looked at (a resume skips FINISHED ones; an
 #: old run's params are compared).
 CANDIDATES = 20
@@ -79,7 +67,7 @@ def _find(
     accept: Callable[[Run], bool],
 ) -> str | None:
     """The newest run of ``reads.stage`` in ``status`` (an MLflow filter clause; "": any) that
-    ``accept`` takes, by ``cfg``'s digest, else by an earlier or legacy digest and params."""
+    ``accept`` takes, by ``cfg``'s digest, else by an earlier declaration's digest and params."""
     exp = client.get_experiment_by_name(str(cfg.tracking.experiment))
     if exp is None:
         return None
@@ -104,11 +92,7 @@ def _find(
     for run in search(current):
         if accept(run):
             return str(run.info.run_id)
-    older = reads.earlier_digests(cfg)
-    keys = LEGACY_INPUTS.get(reads.stage)
-    if keys:
-        older.append(digest(cfg, keys))
-    for value in dict.fromkeys(d for d in older if d != current):
+    for value in dict.fromkeys(d for d in reads.earlier_digests(cfg) if d != current):
         for run in search(value):
             if accept(run) and params_match(run, cfg, reads):
                 return str(run.info.run_id)
