@@ -1,6 +1,7 @@
 """The late phase: from a share of the budget on, the model's discount (and an n-step buffer's,
 which discounts its own samples) and its updates per call change; before it they are the
-preset's; a run resumed past the switch starts switched; a non-privileged preset takes it and
+preset's; a run resumed past the switch starts switched and keeps the step its switch came at; a
+non-privileged preset takes it and
 bad values are one sentence."""
 
 from __future__ import annotations
@@ -17,7 +18,12 @@ from armexp import aids
 from armexp.agents.late_phase import LatePhase, SwitchAt
 from armexp.cli import main
 from armexp.config import compose_config
-from tests.helpers import plain_train, refused_in_one_sentence, stage_runs
+from tests.helpers import (
+    interrupt_training_at,
+    plain_train,
+    refused_in_one_sentence,
+    stage_runs,
+)
 
 LATE = (
     "+agent.aids.late_phase={_target_:armexp.agents.late_phase.LatePhase,"
@@ -138,3 +144,26 @@ def test_a_non_privileged_run_switches_through_the_train_stage_and_bad_input_is_
     both = plain_train(runs_dir, sil, LATE)
     with_sil = "agent.aids.late_phase is not allowed with agent.aids.self_imitation"
     refused_in_one_sentence(runs_dir, capsys, both, with_sil)
+
+
+@pytest.mark.long
+def test_a_run_stopped_after_its_switch_and_resumed_reports_the_step_the_switch_came_at(
+    runs_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    interrupt_training_at(monkeypatch, 450)
+    assert main(plain_train(runs_dir, LATE)) == 130
+    (stopped,) = stage_runs(runs_dir, "train")
+    assert stopped.info.status == "KILLED"
+    # Logged when it happened, not only at the end the stopped run never reached.
+    assert stopped.data.metrics["final/late_phase_step"] in (300.0, 302.0)
+    monkeypatch.undo()
+    resume = [f"train.resume={stopped.info.run_id}", f"tracking.runs_dir={runs_dir}"]
+    assert main(["train", *resume]) == 0
+    assert "from step 450" in capsys.readouterr().out
+    (resumed,) = stage_runs(runs_dir, "train")
+    assert resumed.info.status == "FINISHED"
+    assert resumed.data.metrics["final/env_steps"] == 600
+    assert (
+        resumed.data.metrics["final/late_phase_step"]
+        == stopped.data.metrics["final/late_phase_step"]
+    )

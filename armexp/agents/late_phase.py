@@ -23,11 +23,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import cast
 
+from mlflow.tracking import MlflowClient
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from armexp import aids
 from armexp.agents.addons import TrainingAddOn, TrainingContext
+
+#: The environment step of the switch (−1: it never came).
+SWITCH_METRIC = "final/late_phase_step"
 
 
 def set_discount(model: OffPolicyAlgorithm, gamma: float) -> None:
@@ -42,13 +46,20 @@ def set_discount(model: OffPolicyAlgorithm, gamma: float) -> None:
 class SwitchAt(BaseCallback):
     """Sets ``gamma`` and ``gradient_steps`` (None: left as they are) on the model once
     ``used()``, the share of the budget spent, reaches ``at``; `switched_at` is the step it did
-    (None before). A run resumed past ``at`` switches when training starts."""
+    (None before), handed to ``on_switch`` too. A run resumed past ``at`` switches when training
+    starts."""
 
     def __init__(
-        self, at: float, gamma: float | None, gradient_steps: int | None, used: Callable[[], float]
+        self,
+        at: float,
+        gamma: float | None,
+        gradient_steps: int | None,
+        used: Callable[[], float],
+        on_switch: Callable[[int], None] | None = None,
     ) -> None:
         super().__init__()
         self.at, self.gamma, self.gradient_steps, self.used = at, gamma, gradient_steps, used
+        self.on_switch = on_switch
         self.switched_at: int | None = None
 
     def _on_training_start(self) -> None:
@@ -62,14 +73,18 @@ class SwitchAt(BaseCallback):
             if self.gradient_steps is not None:
                 model.gradient_steps = self.gradient_steps
             self.switched_at = int(model.num_timesteps)
+            if self.on_switch is not None:
+                self.on_switch(self.switched_at)
         return True
 
 
 class LatePhase(TrainingAddOn):
     """From the share ``at`` of the budget on, discount ``gamma`` and ``gradient_steps`` updates
     per call (either None: the preset's own); before it, the preset's (module doc).
-    ``final/late_phase_step`` is the environment step the switch came at (−1: never; in a run
-    resumed past ``at``, the step it resumed at)."""
+    ``final/late_phase_step`` is the environment step the switch came at (−1: never). It is
+    logged when the switch happens, so that a run stopped after it and resumed keeps that step
+    rather than the one it resumed at (a run stopped before this was logged, and resumed past
+    ``at``, reports the step it resumed at)."""
 
     declaration = aids.LATE_PHASE
 
@@ -90,12 +105,23 @@ class LatePhase(TrainingAddOn):
         self.gamma = None if gamma is None else float(gamma)
         self.gradient_steps = None if gradient_steps is None else int(gradient_steps)
         self.callback: SwitchAt | None = None
+        #: The switch step a resumed run logged before it stopped (None: none logged).
+        self.logged_before: int | None = None
 
     def setup(self, ctx: TrainingContext) -> list[BaseCallback]:
-        self.callback = SwitchAt(self.at, self.gamma, self.gradient_steps, ctx.budget_used)
+        client = MlflowClient() if ctx.run_id else None
+        if client is not None and ctx.resumed:
+            earlier = client.get_run(ctx.run_id).data.metrics.get(SWITCH_METRIC)
+            self.logged_before = None if earlier is None or earlier < 0 else int(earlier)
+
+        def record(step: int) -> None:
+            if client is not None and self.logged_before is None:
+                client.log_metric(ctx.run_id, SWITCH_METRIC, float(step), step=step)
+
+        self.callback = SwitchAt(self.at, self.gamma, self.gradient_steps, ctx.budget_used, record)
         return [self.callback]
 
     def finish(self, ctx: TrainingContext) -> dict[str, float]:
         assert self.callback is not None
-        step = self.callback.switched_at
-        return {"final/late_phase_step": float(-1 if step is None else step)}
+        step = self.logged_before if self.logged_before is not None else self.callback.switched_at
+        return {SWITCH_METRIC: float(-1 if step is None else step)}
