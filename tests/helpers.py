@@ -139,6 +139,28 @@ def interrupt_training_at(monkeypatch: Any, steps: int) -> None:
     monkeypatch.setattr(EpisodeStats, "_on_step", interrupted)
 
 
+def stop_and_resume(
+    runs_dir: Path, monkeypatch: Any, capsys: Any, argv: list[str], at: int
+) -> tuple[Any, Any]:
+    """Runs `armexp` with ``argv``, stopped as by Ctrl-C at ``at`` environment steps (exit 130),
+    then ``train.resume`` of the run it left, which must say it continues from ``at`` with its
+    replay buffer and finish; the stopped run as it was left, and the resumed one."""
+    from armexp.cli import main
+
+    interrupt_training_at(monkeypatch, at)
+    assert main(argv) == 130
+    (stopped,) = stage_runs(runs_dir, "train")
+    assert stopped.info.status == "KILLED"
+    monkeypatch.undo()
+    capsys.readouterr()
+    resume = [f"train.resume={stopped.info.run_id}", f"tracking.runs_dir={runs_dir}"]
+    assert main(["train", *resume]) == 0
+    assert f"from step {at}, with its replay buffer" in capsys.readouterr().out
+    (resumed,) = stage_runs(runs_dir, "train")
+    assert resumed.info.status == "FINISHED"
+    return stopped, resumed
+
+
 def config_dir_with_my_arm(tmp_path: Path) -> Path:
     """A config folder for ``--config-dir`` with one extra robot option, ``robot=my_arm`` (the
     paper arm under another name)."""

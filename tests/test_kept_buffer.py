@@ -17,11 +17,10 @@ from armexp.agents import kept_buffer
 from armexp.agents.factory import build_agent, load_agent
 from armexp.agents.relabel import RelabellingReplayBuffer
 from armexp.agents.vec import make_vec_env
-from armexp.cli import main
 from armexp.config import compose_config
 from armexp.envs.factory import settings_from_config
 from armexp.envs.reach import reward_params
-from tests.helpers import interrupt_training_at, plain_train, stage_runs
+from tests.helpers import plain_train, stop_and_resume
 
 HER = "+agent.aids.her={_target_:armexp.agents.relabel.GoalRelabelling,ratio:0.8}"
 SMALL = ["controller.gains=paper", "agent=sac_smoke", "agent.net_arch=[32,32]",
@@ -132,15 +131,6 @@ def test_an_interrupted_run_with_goal_relabelling_resumes_on_its_relabelling_buf
     runs_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     base = plain_train(runs_dir, HER, "agent.n_steps=1", "train.checkpoint_every=100000")
-    interrupt_training_at(monkeypatch, 450)
-    assert main(base) == 130
-    (run,) = stage_runs(runs_dir, "train")
-    monkeypatch.undo()
-    capsys.readouterr()
-    resume = [f"train.resume={run.info.run_id}", f"tracking.runs_dir={runs_dir}"]
-    assert main(["train", *resume]) == 0
-    assert "from step 450, with its replay buffer" in capsys.readouterr().out
-    (resumed,) = stage_runs(runs_dir, "train")
-    assert resumed.info.status == "FINISHED"
+    _, resumed = stop_and_resume(runs_dir, monkeypatch, capsys, base, at=450)
     assert resumed.data.metrics["final/env_steps"] == 600
     assert resumed.data.metrics["final/her_ratio"] == 0.8

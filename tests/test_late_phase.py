@@ -19,10 +19,10 @@ from armexp.agents.late_phase import LatePhase, SwitchAt
 from armexp.cli import main
 from armexp.config import compose_config
 from tests.helpers import (
-    interrupt_training_at,
     plain_train,
     refused_in_one_sentence,
     stage_runs,
+    stop_and_resume,
 )
 
 LATE = (
@@ -150,18 +150,11 @@ def test_a_non_privileged_run_switches_through_the_train_stage_and_bad_input_is_
 def test_a_run_stopped_after_its_switch_and_resumed_reports_the_step_the_switch_came_at(
     runs_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    interrupt_training_at(monkeypatch, 450)
-    assert main(plain_train(runs_dir, LATE)) == 130
-    (stopped,) = stage_runs(runs_dir, "train")
-    assert stopped.info.status == "KILLED"
+    stopped, resumed = stop_and_resume(
+        runs_dir, monkeypatch, capsys, plain_train(runs_dir, LATE), at=450
+    )
     # Logged when it happened, not only at the end the stopped run never reached.
     assert stopped.data.metrics["final/late_phase_step"] in (300.0, 302.0)
-    monkeypatch.undo()
-    resume = [f"train.resume={stopped.info.run_id}", f"tracking.runs_dir={runs_dir}"]
-    assert main(["train", *resume]) == 0
-    assert "from step 450" in capsys.readouterr().out
-    (resumed,) = stage_runs(runs_dir, "train")
-    assert resumed.info.status == "FINISHED"
     assert resumed.data.metrics["final/env_steps"] == 600
     assert (
         resumed.data.metrics["final/late_phase_step"]
