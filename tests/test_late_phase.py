@@ -1,8 +1,7 @@
 """The late phase: from a share of the budget on, the model's discount (and an n-step buffer's,
 which discounts its own samples) and its updates per call change; before it they are the
 preset's; a run resumed past the switch starts switched and keeps the step its switch came at; a
-non-privileged preset takes it and
-bad values are one sentence."""
+non-privileged preset takes it and bad values are one sentence."""
 
 from __future__ import annotations
 
