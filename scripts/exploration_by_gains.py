@@ -2,8 +2,9 @@
 episodes of uniform random actions and of red noise (β 2, `pink.ColoredNoiseProcess`, as the
 `coloured_noise` aid draws), or of a train run's policy, through the real environment (the paper
 arm, the five obstacles, Table I's reward), the same episodes under the paper's gains and under
-the gains given, with how the episodes ended and the joint tracking error max|q − q_d| after
-each action.
+the gains given, with how the episodes ended, their mean return, the share of steps whose tip
+error grew (Table I's growth penalty) and the joint tracking error max|q − q_d| after each
+action.
 
     python scripts/exploration_by_gains.py --gains 58.02 3192.6 817.5 3.644e-5 1.0
     python scripts/exploration_by_gains.py --gains 58.02 3199.9 284.3 1e-6 1.0 --policy FOLDER
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,24 +42,42 @@ from armexp.paper import GAINS as PAPER
 POLICY_RESET_SEEDS = 50_000
 
 
+#: The kinds of action sequence: none (the arm held at its start), uniform, red noise.
+KINDS = ("still", "uniform", "red")
+
+
 def actions(kind: str, rng: np.random.Generator, steps: int) -> np.ndarray:
-    """One episode's actions (steps, 2) in [-1, 1]: uniform, or red noise clipped to the box."""
+    """One episode's actions (steps, 2) in [-1, 1]: zero (`still`: the reference held, what a
+    parked policy commands), uniform, or red noise clipped to the box."""
+    if kind == "still":
+        return np.zeros((steps, 2))
     if kind == "uniform":
         return rng.uniform(-1.0, 1.0, (steps, 2))
     process = ColoredNoiseProcess(beta=2.0, size=(2, steps), rng=rng)
     return np.clip(np.stack([process.sample() for _ in range(steps)]), -1.0, 1.0)
 
 
-def explore(gains: dict[str, float], kind: str, episodes: int) -> tuple[Counter[str], np.ndarray]:
-    """How ``episodes`` episodes of ``kind`` actions ended under ``gains``, and the tracking
-    error after each action (rad). The action sequences depend on the episode's index only."""
+@dataclass
+class Tally:
+    """What a set of episodes met: how each ended, its return, how many of its steps grew the
+    tip error, and the tracking error after each action (rad)."""
+
+    ends: Counter[str] = field(default_factory=Counter)
+    returns: list[float] = field(default_factory=list)
+    grown: int = 0
+    steps: int = 0
+    errors: list[float] = field(default_factory=list)
+
+
+def explore(gains: dict[str, float], kind: str, episodes: int) -> Tally:
+    """``episodes`` episodes of ``kind`` actions under ``gains``. The action sequences depend on
+    the episode's index only."""
     env = make_reach(gains=gains)
-    ends: Counter[str] = Counter()
-    errors: list[float] = []
+    tally = Tally()
     for episode in range(episodes):
         sequence = actions(kind, np.random.default_rng(episode), env.settings.max_steps)
-        ends[_play(env, episode, _replay(sequence), errors)] += 1
-    return ends, np.asarray(errors)
+        _play(env, episode, _replay(sequence), tally)
+    return tally
 
 
 def _replay(sequence: np.ndarray) -> Callable[[np.ndarray, int], np.ndarray]:
@@ -66,18 +86,24 @@ def _replay(sequence: np.ndarray) -> Callable[[np.ndarray, int], np.ndarray]:
 
 
 def _play(
-    env: ReachEnv, seed: int, act: Callable[[np.ndarray, int], np.ndarray], errors: list[float]
-) -> str:
+    env: ReachEnv, seed: int, act: Callable[[np.ndarray, int], np.ndarray], tally: Tally
+) -> None:
     """One episode from ``env.reset(seed=seed)``, ``act(observation, step)`` choosing each
-    action; the tracking error after each action is appended to ``errors``. How it ended."""
+    action, counted into ``tally``."""
     obs, _ = env.reset(seed=seed)
     info: dict[str, object] = {}
+    total = 0.0
     for step in range(env.settings.max_steps):
-        obs, _, terminated, truncated, info = env.step(act(obs, step).astype(np.float32))
-        errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
+        before = env.error
+        obs, reward, terminated, truncated, info = env.step(act(obs, step).astype(np.float32))
+        total += reward
+        tally.grown += env.error > before
+        tally.steps += 1
+        tally.errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
         if terminated or truncated:
             break
-    return str(info["reason"])
+    tally.ends[str(info["reason"])] += 1
+    tally.returns.append(total)
 
 
 def load_policy(folder: Path) -> tuple[DictConfig, Any]:
@@ -92,29 +118,29 @@ def load_policy(folder: Path) -> tuple[DictConfig, Any]:
 
 def run_policy(
     cfg: DictConfig, model: Any, gains: dict[str, float], episodes: int, deterministic: bool
-) -> tuple[Counter[str], np.ndarray]:
-    """How ``episodes`` episodes of the policy ended under ``gains`` on its run's environment
-    (training's target draw), and the tracking error after each action. Episode ``i`` resets
-    with seed ``POLICY_RESET_SEEDS + i`` and, sampled, draws its actions after
-    ``torch.manual_seed(i)``: the same episodes under any gains but for what the gains change."""
+) -> Tally:
+    """``episodes`` episodes of the policy under ``gains`` on its run's environment (training's
+    target draw). Episode ``i`` resets with seed ``POLICY_RESET_SEEDS + i`` and, sampled, draws
+    its actions after ``torch.manual_seed(i)``: the same episodes under any gains but for what
+    the gains change."""
     env = ReachEnv(settings_from_config(cfg, gains=gains, with_tasks=False))
-    ends: Counter[str] = Counter()
-    errors: list[float] = []
+    tally = Tally()
 
     def act(obs: np.ndarray, _: int) -> np.ndarray:
         return model.predict(obs, deterministic=deterministic)[0]
 
     for episode in range(episodes):
         torch.manual_seed(episode)
-        ends[_play(env, POLICY_RESET_SEEDS + episode, act, errors)] += 1
-    return ends, np.asarray(errors)
+        _play(env, POLICY_RESET_SEEDS + episode, act, tally)
+    return tally
 
 
-def _print(label: str, name: str, ends: Counter[str], errors: np.ndarray) -> None:
-    median, p99 = np.quantile(errors, [0.5, 0.99]) * 1e3
+def _print(label: str, name: str, tally: Tally) -> None:
+    median, p99 = np.quantile(tally.errors, [0.5, 0.99]) * 1e3
     print(
-        f"{label:13s} {name:5s} ends {dict(sorted(ends.items()))} | max|q - q_d| "
-        f"median {median:.2f} mrad, 99th percentile {p99:.2f} mrad"
+        f"{label:13s} {name:5s} ends {dict(sorted(tally.ends.items()))} | mean return "
+        f"{np.mean(tally.returns):.2f} | error grew on {tally.grown / tally.steps:.3f} of the "
+        f"steps | max|q - q_d| median {median:.2f} mrad, 99th percentile {p99:.2f} mrad"
     )
 
 
@@ -131,11 +157,11 @@ def main() -> None:
         for deterministic in (True, False):
             label = "deterministic" if deterministic else "sampled"
             for name, gains in both:
-                _print(label, name, *run_policy(cfg, model, gains, args.episodes, deterministic))
+                _print(label, name, run_policy(cfg, model, gains, args.episodes, deterministic))
         return
-    for kind in ("uniform", "red"):
+    for kind in KINDS:
         for name, gains in both:
-            _print(kind, name, *explore(gains, kind, args.episodes))
+            _print(kind, name, explore(gains, kind, args.episodes))
 
 
 if __name__ == "__main__":
