@@ -1,10 +1,10 @@
 """What random exploration, or a trained policy, meets under two sets of adaptive gains:
-episodes of uniform random actions and of red noise (β 2, `pink.ColoredNoiseProcess`, as the
-`coloured_noise` aid draws), or of a train run's policy, through the real environment (the paper
-arm, the five obstacles, Table I's reward), the same episodes under the paper's gains and under
-the gains given, with how the episodes ended, their mean return, the share of steps whose tip
-error grew (Table I's growth penalty) and the joint tracking error max|q − q_d| after each
-action.
+episodes of zero actions (the arm held at its start), of uniform random actions and of red noise
+(β 2, `pink.ColoredNoiseProcess`, as the `coloured_noise` aid draws), or of a train run's
+policy, through the real environment (the paper arm, the five obstacles, Table I's reward), the
+same episodes under the paper's gains and under the gains given, with how the episodes ended,
+their mean return, the share of steps whose tip error grew (Table I's growth penalty) and the
+joint tracking error max|q − q_d| after each action.
 
     python scripts/exploration_by_gains.py --gains 58.02 3192.6 817.5 3.644e-5 1.0
     python scripts/exploration_by_gains.py --gains 58.02 3199.9 284.3 1e-6 1.0 --policy FOLDER
