@@ -65,8 +65,12 @@ class Tally:
     ends: Counter[str] = field(default_factory=Counter)
     returns: list[float] = field(default_factory=list)
     grown: int = 0
-    steps: int = 0
     errors: list[float] = field(default_factory=list)
+
+    @property
+    def steps(self) -> int:
+        """How many steps the episodes took: one tracking error was kept per step."""
+        return len(self.errors)
 
 
 def explore(gains: dict[str, float], kind: str, episodes: int) -> Tally:
@@ -98,7 +102,6 @@ def _play(
         obs, reward, terminated, truncated, info = env.step(act(obs, step).astype(np.float32))
         total += reward
         tally.grown += env.error > before
-        tally.steps += 1
         tally.errors.append(float(np.abs(env.sim.q - env.sim.q_d).max()))
         if terminated or truncated:
             break
